@@ -1,0 +1,112 @@
+"""`gnss-kf`: the non-cooperative baseline — one Kalman filter per vehicle from GNSS only.
+
+Model: the vehicle motion model of the scenario (`Setup.vehicle_motion`, e.g. the CV
+model of Fröhle eqs. (28)–(29)) and the GNSS model z = H x + w, w ~ N(0, W_s)
+(eq. 30). Every paper uses this filter as the reference without cooperation; in
+Fröhle Fig. 5 it is the K = 0 point.
+
+Each step: drop vehicles that left, start entering ones from their prior, predict all
+others, and update every vehicle with its own GNSS rows (`subject` = its id). Rows with
+an unknown subject (anonymous GNSS) are ignored: this filter cannot associate them. A
+vehicle with no fix this step is only predicted.
+
+All vehicles are filtered together as one batch (`gaussian.kf_predict/kf_update`), so
+a step costs O(n dx³) in NumPy calls whose number does not grow with n.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from cooploc.estimators.base import VehicleBeliefs
+from cooploc.gaussian import Gaussians, kf_predict, kf_update
+from cooploc.params import Params
+from cooploc.types import Batch, Estimate, Frame, Setup, StateSet
+
+__all__ = ["GnssKF", "GnssKFParams"]
+
+
+@dataclass(frozen=True)
+class GnssKFParams(Params):
+    """`gnss-kf` has no tuning parameters: it uses the scenario's models as given."""
+
+    @classmethod
+    def owner(cls) -> str:
+        return "gnss-kf"
+
+
+class GnssKF:
+    """Kalman filter per vehicle from its own GNSS fixes (batched over vehicles)."""
+
+    name: ClassVar[str] = "gnss-kf"
+    summary: ClassVar[str] = "non-cooperative Kalman filter per vehicle from GNSS (baseline)"
+    Params: ClassVar[type[Params]] = GnssKFParams
+    needs_truth: ClassVar[bool] = False
+    default_preset: ClassVar[str] = "froehle2018"
+
+    def __init__(self, setup: Setup, params: GnssKFParams, rng: np.random.Generator) -> None:
+        self.setup = setup
+        self.params = params
+        self.vehicles = VehicleBeliefs(setup)
+        dx = setup.vehicle_layout.dim
+        self._F = setup.vehicle_motion.transition_matrix(setup.dt)
+        self._H = setup.sensors["gnss"].observation_matrix(dx) if "gnss" in setup.sensors else None
+        motion = setup.vehicle_motion
+        self._Q = None if motion.state_dependent_noise else motion.noise_covariance(setup.dt)
+        self._started = False
+
+    def step(self, frame: Frame) -> Estimate:
+        born = self.vehicles.sync(frame)
+        beliefs = self.vehicles.beliefs
+        moving = ~born
+        if self._started and moving.any():
+            Q = self._Q if self._Q is not None else (
+                self.setup.vehicle_motion.noise_covariance(self.setup.dt, beliefs.mean[moving]))
+            if moving.all():
+                beliefs = kf_predict(beliefs, self._F, Q)
+            else:
+                predicted = kf_predict(beliefs.take(moving), self._F, Q)
+                mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
+                mean[moving], cov[moving] = predicted.mean, predicted.cov
+                beliefs = Gaussians(mean, cov)
+        self._started = True
+        gnss = frame.batches.get("gnss")
+        if gnss is not None and len(gnss) and self._H is not None:
+            beliefs = self._update(beliefs, gnss)
+        self.vehicles.beliefs = beliefs
+        ids = self.vehicles.ids
+        return Estimate(StateSet(ids, beliefs.mean, beliefs.cov))
+
+    def _update(self, beliefs: Gaussians, gnss: Batch) -> Gaussians:
+        ids = self.vehicles.ids  # sorted
+        if ids.size == 0:
+            return beliefs
+        pos = np.minimum(np.searchsorted(ids, gnss.subject), ids.size - 1)
+        rows = np.flatnonzero(ids[pos] == gnss.subject)  # rows about a vehicle present
+        if rows.size == 0:
+            return beliefs
+        target = pos[rows]
+        if np.unique(target).size == target.size:  # usual case: at most one fix each
+            updated = kf_update(beliefs.take(target), gnss.z[rows], self._H, gnss.cov[rows])
+            if target.size == ids.size and np.array_equal(target, np.arange(ids.size)):
+                return updated
+            mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
+            mean[target], cov[target] = updated.mean, updated.cov
+            return Gaussians(mean, cov)
+        # A vehicle with several fixes in one step is updated once per fix, in rounds
+        # of distinct vehicles so that each round is one batched update.
+        order = np.argsort(target, kind="stable")
+        rows, target = rows[order], target[order]
+        first = np.r_[0, np.flatnonzero(np.diff(target)) + 1]
+        rank = np.arange(target.size) - np.repeat(first, np.diff(np.r_[first, target.size]))
+        mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
+        for r in range(int(rank.max()) + 1):
+            sel = rank == r
+            t = target[sel]
+            updated = kf_update(Gaussians(mean[t], cov[t]), gnss.z[rows[sel]], self._H,
+                                gnss.cov[rows[sel]])
+            mean[t], cov[t] = updated.mean, updated.cov
+        return Gaussians(mean, cov)

@@ -1,0 +1,274 @@
+"""`oracle-kf`: the centralized Kalman filter with known association — the accuracy bound.
+
+One Kalman filter over the stacked state θ = [x_1; …; x_S; f_1; …; f_K] of every
+vehicle and feature (Fröhle §III, eq. (9) with the association variables fixed to
+their true values), fed every GNSS row and every V2F row whose true origin is read from
+`Truth.origin`. For the linear-Gaussian scenarios (Fröhle §V) this is the exact MMSE
+estimator given the association, so no estimator that must also infer the
+association can beat it beyond Monte Carlo noise. Fröhle §V-B compares its loopy BP
+with "a centralized Kalman filter over the joint total state"; Brambilla 2020 calls
+the same reference "ICP with known DA".
+
+It reads only the association (`AssociationTruth`: origins and infrastructure poses),
+never true states. Clutter rows (origin −1) are discarded — the oracle knows them.
+
+Per step: vehicles that leave are marginalised out (their rows and columns dropped),
+entering vehicles and newly seen features are appended with their prior (or a broad
+belief around their first fix), features unseen for `feature_timeout` steps are
+dropped; then one joint prediction and one joint Joseph-form update with all rows
+stacked. Cost O(D³ + D² m) for D = 4(S + K) states and m measurement components.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from cooploc.estimators.base import (
+    AssociationTruth,
+    birth_beliefs,
+    default_birth_cov,
+    predict_steps,
+)
+from cooploc.gaussian import Gaussians, block_diagonal, kf_update, symmetrize
+from cooploc.params import Params, require
+from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+
+__all__ = ["OracleKF", "OracleKFParams"]
+
+
+@dataclass(frozen=True)
+class OracleKFParams(Params):
+    """Parameters of `oracle-kf`.
+
+    Attributes
+    ----------
+    feature_timeout : drop a feature after this many steps without a measurement
+        (keeps the joint state bounded in traffic where features come and go).
+    """
+
+    feature_timeout: int = 100
+
+    @classmethod
+    def owner(cls) -> str:
+        return "oracle-kf"
+
+    def validate(self) -> None:
+        require(self.feature_timeout >= 1, self.owner(), "feature_timeout",
+                self.feature_timeout, "be >= 1")
+
+
+class OracleKF:
+    """Joint Kalman filter over all vehicles and features with the true association."""
+
+    name: ClassVar[str] = "oracle-kf"
+    summary: ClassVar[str] = (
+        "centralized joint Kalman filter with KNOWN association (reads Truth.origin) — "
+        "the accuracy bound, not a method"
+    )
+    Params: ClassVar[type[Params]] = OracleKFParams
+    needs_truth: ClassVar[bool] = True
+    default_preset: ClassVar[str] = "froehle2018"
+
+    def __init__(self, setup: Setup, params: OracleKFParams, rng: np.random.Generator, *,
+                 truth: AssociationTruth) -> None:
+        self.setup, self.params, self.truth = setup, params, truth
+        self.dx = setup.vehicle_layout.dim
+        self.df = setup.feature_layout.dim if setup.feature_layout is not None else 0
+        self.vehicle_ids: IntArray = np.zeros(0, dtype=np.int64)
+        self.feature_ids: IntArray = np.zeros(0, dtype=np.int64)
+        self.last_seen: IntArray = np.zeros(0, dtype=np.int64)
+        self.mean: FloatArray = np.zeros(0)
+        self.cov: FloatArray = np.zeros((0, 0))
+        self._Fx = setup.vehicle_motion.transition_matrix(setup.dt)
+        self._Ff = (setup.feature_motion.transition_matrix(setup.dt)
+                    if setup.feature_motion is not None else None)
+
+    # -- state bookkeeping ---------------------------------------------------------
+
+    def _blocks(self) -> tuple[IntArray, IntArray]:
+        """Start index of each vehicle and feature block in the stacked state."""
+        nv = self.vehicle_ids.size
+        return (np.arange(nv) * self.dx, nv * self.dx + np.arange(self.feature_ids.size) * self.df)
+
+    def _keep(self, keep_vehicles: np.ndarray, keep_features: np.ndarray) -> None:
+        """Marginalise out the vehicles and features not kept (drop rows and columns)."""
+        vstart, fstart = self._blocks()
+        idx = np.concatenate([
+            (vstart[keep_vehicles, None] + np.arange(self.dx)).ravel(),
+            (fstart[keep_features, None] + np.arange(self.df)).ravel(),
+        ]).astype(np.int64)
+        self.mean, self.cov = self.mean[idx], self.cov[np.ix_(idx, idx)]
+        self.vehicle_ids = self.vehicle_ids[keep_vehicles]
+        self.feature_ids = self.feature_ids[keep_features]
+        self.last_seen = self.last_seen[keep_features]
+
+    def _append(self, vehicles: Gaussians, vehicle_ids: IntArray,
+                features: Gaussians, feature_ids: IntArray, k: int) -> None:
+        """Append new vehicle and feature blocks, uncorrelated with the rest."""
+        nv = self.vehicle_ids.size * self.dx
+        mean = np.concatenate([self.mean[:nv], vehicles.mean.ravel(), self.mean[nv:],
+                               features.mean.ravel()])
+        cov = block_diagonal(self.cov[:nv, :nv][None], vehicles.cov, self.cov[nv:, nv:][None],
+                             features.cov)
+        n_old_v, n_new_v = nv, vehicles.mean.size
+        if self.cov.size:  # keep the old vehicle–feature cross-covariance
+            old_f = slice(n_old_v + n_new_v, n_old_v + n_new_v + self.cov.shape[0] - nv)
+            cov[:n_old_v, old_f] = self.cov[:nv, nv:]
+            cov[old_f, :n_old_v] = self.cov[nv:, :nv]
+        self.mean, self.cov = mean, cov
+        self.vehicle_ids = np.concatenate([self.vehicle_ids, vehicle_ids])
+        self.feature_ids = np.concatenate([self.feature_ids, feature_ids])
+        self.last_seen = np.concatenate([self.last_seen, np.full(feature_ids.size, k)])
+
+    def _feature_births(self, frame: Frame, ids: IntArray, v2f_rows: IntArray,
+                        origin: IntArray) -> Gaussians:
+        """Priors of newly seen features: `Setup.feature_prior`, or broad at the first fix."""
+        setup = self.setup
+        mean = np.zeros((ids.size, self.df))
+        birth = default_birth_cov(setup)[: self.df, : self.df] if self.df == self.dx else (
+            1e4 * np.eye(self.df))
+        cov = np.repeat(birth[None], ids.size, axis=0)
+        prior = setup.feature_prior
+        known = np.isin(ids, prior.ids) if prior is not None else np.zeros(ids.size, bool)
+        if known.any():
+            p = prior.take(ids[known])
+            # the prior holds at step 0; a feature first seen at step k was moving unseen
+            # since: predict it k steps (exactly what keeping it in the state would give)
+            predicted = predict_steps(Gaussians(p.mean, p.cov), setup.feature_motion, setup.dt,
+                                      frame.k)
+            mean[known], cov[known] = predicted.mean, predicted.cov
+        v2f = frame.batches["v2f"]
+        sensor = setup.sensors["v2f"]
+        vstart, _ = self._blocks()
+        pos_f = list(sensor.state_indices)
+        for i in np.flatnonzero(~known):  # first fix: f ≈ x̂_s + z
+            row = v2f_rows[origin[v2f_rows] == ids[i]][0]
+            s = np.searchsorted(self.vehicle_ids, v2f.sensor[row])
+            mean[i, pos_f] = self.mean[vstart[s] + np.asarray(pos_f)] + v2f.z[row]
+        return Gaussians(mean, cov)
+
+    # -- filter ---------------------------------------------------------------------
+
+    def step(self, frame: Frame) -> Estimate:
+        k = frame.k
+        origin = self.truth.origin[k]
+        present = frame.vehicles
+
+        # vehicles that left, features unseen for too long: marginalise out
+        self._keep(np.isin(self.vehicle_ids, present),
+                   k - self.last_seen <= self.params.feature_timeout)
+
+        # predict every block already in the state (new ones start at their prior)
+        self._predict()
+
+        # vehicles that entered
+        new_v = np.setdiff1d(present, self.vehicle_ids)
+        v_birth = birth_beliefs(self.setup, new_v, frame)
+        self._append(v_birth, new_v, Gaussians(np.zeros((0, self.df)), np.zeros((0, self.df, self.df))),
+                     np.zeros(0, np.int64), k)
+        self._sort()
+
+        # features seen for the first time (by a vehicle that is present)
+        v2f = frame.batches.get("v2f")
+        v2f_rows = np.zeros(0, dtype=np.int64)
+        if v2f is not None and len(v2f) and self.df:
+            o = origin["v2f"]
+            v2f_rows = np.flatnonzero((o >= 0) & np.isin(v2f.sensor, self.vehicle_ids))
+            new_f = np.setdiff1d(o[v2f_rows], self.feature_ids)
+            if new_f.size:
+                f_birth = self._feature_births(frame, new_f, v2f_rows, o)
+                self._append(Gaussians(np.zeros((0, self.dx)), np.zeros((0, self.dx, self.dx))),
+                             np.zeros(0, np.int64), f_birth, new_f, k)
+        self._sort()
+        self._update(frame, v2f_rows)
+        return self._estimate()
+
+    def _sort(self) -> None:
+        """Order blocks by id so that results do not depend on arrival order."""
+        vo = np.argsort(self.vehicle_ids, kind="stable")
+        fo = np.argsort(self.feature_ids, kind="stable")
+        if (vo == np.arange(vo.size)).all() and (fo == np.arange(fo.size)).all():
+            return  # already in order (the usual step)
+        vstart, fstart = self._blocks()
+        idx = np.concatenate([(vstart[vo, None] + np.arange(self.dx)).ravel(),
+                              (fstart[fo, None] + np.arange(self.df)).ravel()]).astype(np.int64)
+        self.mean, self.cov = self.mean[idx], self.cov[np.ix_(idx, idx)]
+        self.vehicle_ids, self.feature_ids = self.vehicle_ids[vo], self.feature_ids[fo]
+        self.last_seen = self.last_seen[fo]
+
+    def _predict(self) -> None:
+        if self.mean.size == 0:
+            return
+        dt, nv, nf = self.setup.dt, self.vehicle_ids.size, self.feature_ids.size
+        v_means = self.mean[: nv * self.dx].reshape(nv, self.dx)
+        Qv = np.broadcast_to(self.setup.vehicle_motion.noise_covariance(dt, v_means),
+                             (nv, self.dx, self.dx))
+        F_blocks = [np.broadcast_to(self._Fx, (nv, self.dx, self.dx))]
+        Q_blocks = [Qv]
+        if nf:
+            f_means = self.mean[nv * self.dx:].reshape(nf, self.df)
+            Q_blocks.append(np.broadcast_to(
+                self.setup.feature_motion.noise_covariance(dt, f_means), (nf, self.df, self.df)))
+            F_blocks.append(np.broadcast_to(self._Ff, (nf, self.df, self.df)))
+        F, Q = block_diagonal(*F_blocks), block_diagonal(*Q_blocks)
+        self.mean = F @ self.mean                                  # θ⁻ = F θ
+        self.cov = symmetrize(F @ self.cov @ F.T + Q)              # P⁻ = F P Fᵀ + Q
+
+    def _update(self, frame: Frame, v2f_rows: IntArray) -> None:
+        """One Joseph-form update with every associated row stacked."""
+        D = self.mean.size
+        vstart, fstart = self._blocks()
+        H_rows, z_rows, R_blocks = [], [], []
+        gnss = frame.batches.get("gnss")
+        if gnss is not None and len(gnss) and "gnss" in self.setup.sensors:
+            rows = np.flatnonzero(np.isin(gnss.subject, self.vehicle_ids))
+            if rows.size:
+                Hg = self.setup.sensors["gnss"].observation_matrix(self.dx)
+                s = np.searchsorted(self.vehicle_ids, gnss.subject[rows])
+                H = np.zeros((rows.size, Hg.shape[0], D))
+                cols = vstart[s, None] + np.arange(self.dx)                   # (m, dx)
+                H[np.arange(rows.size)[:, None, None], np.arange(Hg.shape[0])[None, :, None],
+                  cols[:, None, :]] = Hg
+                H_rows.append(H.reshape(-1, D))
+                z_rows.append(gnss.z[rows].ravel())
+                R_blocks.append(gnss.cov[rows])
+        if v2f_rows.size:
+            v2f = frame.batches["v2f"]
+            sensor = self.setup.sensors["v2f"]
+            Hx, Hf = sensor.observation_matrix(self.dx), sensor.observation_matrix(self.df)
+            origin = self.truth.origin[frame.k]["v2f"][v2f_rows]
+            keep = np.isin(origin, self.feature_ids)
+            rows, origin = v2f_rows[keep], origin[keep]
+            s = np.searchsorted(self.vehicle_ids, v2f.sensor[rows])
+            f = np.searchsorted(self.feature_ids, origin)
+            self.last_seen[f] = frame.k
+            dz = Hx.shape[0]
+            H = np.zeros((rows.size, dz, D))
+            m_idx = np.arange(rows.size)[:, None, None]
+            z_idx = np.arange(dz)[None, :, None]
+            H[m_idx, z_idx, (fstart[f, None] + np.arange(self.df))[:, None, :]] = Hf   # + H f
+            H[m_idx, z_idx, (vstart[s, None] + np.arange(self.dx))[:, None, :]] = -Hx  # − H x
+            H_rows.append(H.reshape(-1, D))
+            z_rows.append(v2f.z[rows].ravel())
+            R_blocks.append(v2f.cov[rows])
+        if not H_rows:
+            return
+        H, z, R = np.concatenate(H_rows), np.concatenate(z_rows), block_diagonal(*R_blocks)
+        post = kf_update(Gaussians(self.mean[None], self.cov[None]), z[None], H, R)
+        self.mean, self.cov = post.mean[0], post.cov[0]
+
+    def _estimate(self) -> Estimate:
+        nv, nf = self.vehicle_ids.size, self.feature_ids.size
+        vstart, fstart = self._blocks()
+        vi = vstart[:, None] + np.arange(self.dx)
+        v_cov = self.cov[vi[:, :, None], vi[:, None, :]]
+        vehicles = StateSet(self.vehicle_ids, self.mean[vi].reshape(nv, self.dx), v_cov)
+        features = None
+        if self.df:
+            fi = fstart[:, None] + np.arange(self.df)
+            features = StateSet(self.feature_ids, self.mean[fi].reshape(nf, self.df),
+                                self.cov[fi[:, :, None], fi[:, None, :]])
+        return Estimate(vehicles, features, {"state_dim": int(self.mean.size)})

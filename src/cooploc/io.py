@@ -1,0 +1,689 @@
+"""Save and load a `Recording` as a folder of Parquet tables and one JSON file.
+
+This is also the format in which users bring their own data: write the six files
+below (with pyarrow, pandas, polars, …) and `load_recording(folder)` gives a
+`Recording` that every estimator and metric accepts. `save_recording` writes exactly
+this layout, and a saved recording loads back bit for bit (float64 throughout, same
+ids, same row order in every batch, same batch kinds — empty batches included).
+
+Folder layout (format version 1)
+--------------------------------
+``setup.json`` — the static `Setup`, one JSON object:
+
+- ``format_version``: 1.
+- ``dt`` (s), ``n_steps``, ``description``, ``detection_probability``,
+  ``clutter_rate``, ``infrastructure_ids`` (list of ints).
+- ``vehicle_layout`` / ``feature_layout``: ``{"dim", "position", "velocity",
+  "heading"}`` (`StateLayout.to_dict`), or null for features.
+- ``vehicle_motion`` / ``feature_motion``: ``{"model": "constant-velocity", …}``
+  (`MotionModel.to_dict`, read by `cooploc.motion.motion_from_dict`), or null.
+- ``sensors``: ``{kind: {"model": "gnss-position", …}}`` (`SensorModel.to_dict`,
+  read by `cooploc.sensors.sensor_from_dict`).
+- ``vehicle_prior`` / ``feature_prior``: ``{"ids", "mean", "cov", "dim"}``
+  (`StateSet.to_dict` plus the state dimension, which an empty set cannot show), or
+  null for features.
+- ``birth_cov`` ((dx, dx) nested list or null), ``clutter_region`` ((d, 2) or null).
+
+Required: ``format_version``, ``dt``, ``n_steps``, ``vehicle_layout``,
+``vehicle_motion``, ``vehicle_prior``; the others default to the `Setup` defaults
+(no sensors, no features, P_D = 1, no clutter, no infrastructure). Floats are written
+with Python's shortest round-trip repr, so they load back bit for bit.
+
+``frames.parquet`` — one row per step (in any order):
+
+===========  ===============================  ========================================
+column       type                             meaning
+===========  ===============================  ========================================
+step         int64                            k = 0 … T−1, each exactly once
+t            float64                          time in s
+vehicles     list<int64>                      ids of the vehicles present, in order
+links        list<fixed_size_list<int64, 2>>  V2V edges; list<list<int64>> of [a, b]
+                                              pairs is accepted too
+batch_kinds  list<string>                     the measurement kinds of this step
+batch_dims   list<int64>                      dz of each kind, aligned with batch_kinds
+===========  ===============================  ========================================
+
+A kind listed in ``batch_kinds`` with no rows in ``measurements.parquet`` is an empty
+batch (e.g. a V2F sensor that saw nothing); a kind not listed is absent at that step.
+
+``measurements.parquet`` — one row per measurement row of every batch:
+
+=========  ============  ==============================================================
+column     type          meaning
+=========  ============  ==============================================================
+step       int64         the step of the batch
+t          float64       time of the step (optional when reading; must match frames)
+kind       string        the batch kind (must be listed for that step in frames)
+row        int64         position of the row inside its batch: 0 … M−1, each once
+sensor     int64         id of the measuring entity, −1 if unknown
+subject    int64         id of the measured entity, −1 if the association is unknown
+origin     int64         truth: id of the entity the row came from, −1 for clutter
+z          list<double>  the dz measured values
+cov        list<double>  the dz × dz noise covariance, flattened row-major (dz² values)
+=========  ============  ==============================================================
+
+Rows may come in any order; they are sorted by (step, kind order of the frame, row).
+Different kinds (and steps) may have different dz, hence the list columns.
+
+``truth_vehicles.parquet`` and ``truth_features.parquet`` — true states:
+columns ``step`` (int64), ``id`` (int64), ``present`` (bool) and ``x_0 … x_{d−1}``
+(float64, the state components; the columns fix d even when the table is empty).
+`save_recording` writes every (step, id) pair, absent ones included; when reading, a
+missing pair is an absent entity with a zero state. Ids are ordered by first
+appearance.
+
+``sensor_poses.parquet`` — one row per infrastructure sensor, in
+``infrastructure_ids`` order: ``sensor`` (int64 id, or −1 if unknown), ``x``, ``y``
+(m), ``yaw`` (rad).
+
+Writing one by hand, e.g. the measurements of one GNSS fix::
+
+    pq.write_table(pa.table({
+        "step": [0], "kind": ["gnss"], "row": [0], "sensor": [7], "subject": [7],
+        "origin": [7], "z": [[12.5, -3.0]], "cov": [[4.0, 0.0, 0.0, 4.0]],
+    }), folder / "measurements.parquet")
+
+Truth origins are stored per measurement row, so an origin entry for a kind that has
+no batch at that step is not kept. Extra columns are ignored when reading. A missing
+file or malformed content raises `InvalidInputError` naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from cooploc.errors import InvalidInputError
+from cooploc.motion import motion_from_dict
+from cooploc.sensors import sensor_from_dict
+from cooploc.types import (
+    Batch,
+    FloatArray,
+    Frame,
+    IntArray,
+    Recording,
+    Setup,
+    StateLayout,
+    StateSet,
+    Truth,
+)
+
+__all__ = ["FORMAT_VERSION", "load_recording", "save_recording"]
+
+FORMAT_VERSION = 1
+
+SETUP_FILE = "setup.json"
+FRAMES_FILE = "frames.parquet"
+MEASUREMENTS_FILE = "measurements.parquet"
+TRUTH_VEHICLES_FILE = "truth_vehicles.parquet"
+TRUTH_FEATURES_FILE = "truth_features.parquet"
+SENSOR_POSES_FILE = "sensor_poses.parquet"
+
+_STATE_COLUMN = re.compile(r"x_(\d+)")
+
+
+# ----------------------------------------------------------------------------
+# saving
+# ----------------------------------------------------------------------------
+
+
+def save_recording(recording: Recording, folder: str | Path) -> Path:
+    """Write `recording` to `folder` (created if needed; existing files are replaced).
+
+    Returns the folder as a `Path`. See the module docstring for the layout.
+    """
+    if not isinstance(recording, Recording):
+        raise InvalidInputError(
+            f"save_recording needs a Recording, got {type(recording).__name__}"
+        )
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        # allow_nan=False: Setup validates its numbers as finite, and strict JSON keeps
+        # the file readable by tools other than Python's json module.
+        text = json.dumps(_setup_to_dict(recording.setup), indent=2, ensure_ascii=False,
+                          allow_nan=False, default=_json_default)
+    except ValueError as exc:
+        raise InvalidInputError(
+            f"{SETUP_FILE}: the Setup holds a non-finite number ({exc})"
+        ) from exc
+    (folder / SETUP_FILE).write_text(text + "\n", encoding="utf-8")
+    frames_table, measurements_table = _frame_tables(recording)
+    pq.write_table(frames_table, folder / FRAMES_FILE)
+    pq.write_table(measurements_table, folder / MEASUREMENTS_FILE)
+    truth = recording.truth
+    pq.write_table(_truth_table(truth.vehicle_ids, truth.vehicle_states, truth.vehicle_present),
+                   folder / TRUTH_VEHICLES_FILE)
+    pq.write_table(_truth_table(truth.feature_ids, truth.feature_states, truth.feature_present),
+                   folder / TRUTH_FEATURES_FILE)
+    pq.write_table(_poses_table(truth.sensor_poses, recording.setup.infrastructure_ids),
+                   folder / SENSOR_POSES_FILE)
+    return folder
+
+
+def _json_default(value: Any) -> Any:
+    """NumPy scalars and arrays that slipped into a to_dict() become plain JSON values."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+def _prior_to_dict(prior: StateSet | None) -> dict[str, Any] | None:
+    if prior is None:
+        return None
+    # The dimension is stored too: an empty set has no rows to show it.
+    return {**prior.to_dict(), "dim": int(prior.mean.shape[1])}
+
+
+def _setup_to_dict(setup: Setup) -> dict[str, Any]:
+    def optional(obj: Any) -> Any:
+        return None if obj is None else obj.to_dict()
+
+    return {
+        "format_version": FORMAT_VERSION,
+        "description": setup.description,
+        "dt": setup.dt,
+        "n_steps": setup.n_steps,
+        "vehicle_layout": setup.vehicle_layout.to_dict(),
+        "vehicle_motion": setup.vehicle_motion.to_dict(),
+        "vehicle_prior": _prior_to_dict(setup.vehicle_prior),
+        "sensors": {kind: sensor.to_dict() for kind, sensor in setup.sensors.items()},
+        "feature_layout": optional(setup.feature_layout),
+        "feature_motion": optional(setup.feature_motion),
+        "feature_prior": _prior_to_dict(setup.feature_prior),
+        "birth_cov": None if setup.birth_cov is None else np.asarray(setup.birth_cov).tolist(),
+        "detection_probability": setup.detection_probability,
+        "clutter_rate": setup.clutter_rate,
+        "clutter_region": (None if setup.clutter_region is None
+                           else np.asarray(setup.clutter_region).tolist()),
+        "infrastructure_ids": list(setup.infrastructure_ids),
+    }
+
+
+def _list_array(lengths: IntArray, values: pa.Array) -> pa.ListArray:
+    """A list<…> array whose i-th list holds the next lengths[i] of `values`."""
+    offsets = np.zeros(lengths.size + 1, dtype=np.int32)
+    np.cumsum(lengths, out=offsets[1:])
+    return pa.ListArray.from_arrays(pa.array(offsets, pa.int32()), values)
+
+
+def _concat(parts: Sequence[np.ndarray], dtype: type, width: int = 0) -> np.ndarray:
+    """np.concatenate that also works for an empty list (shape (0,) or (0, width))."""
+    if parts:
+        return np.concatenate(parts).astype(dtype, copy=False)
+    return np.zeros((0, width) if width else 0, dtype=dtype)
+
+
+def _frame_tables(recording: Recording) -> tuple[pa.Table, pa.Table]:
+    """frames.parquet and measurements.parquet, built from one pass over the frames.
+
+    The only Python loop is over frames and their batches (not over rows); all rows are
+    gathered with a handful of concatenations.
+    """
+    frames = recording.frames
+    steps = np.arange(len(frames), dtype=np.int64)
+    times = np.array([frame.t for frame in frames], dtype=np.float64)
+    vehicles = [frame.vehicles for frame in frames]
+    links = [frame.links for frame in frames]
+    kinds: list[str] = []            # one entry per batch, frame-major
+    n_kinds = np.zeros(steps.size, dtype=np.int64)
+    dims: list[int] = []
+    counts: list[int] = []
+    z_parts: list[FloatArray] = []
+    cov_parts: list[FloatArray] = []
+    sensor_parts: list[IntArray] = []
+    subject_parts: list[IntArray] = []
+    origin_parts: list[IntArray] = []
+    for k, frame in enumerate(frames):
+        n_kinds[k] = len(frame.batches)
+        for kind, batch in frame.batches.items():
+            kinds.append(kind)
+            dims.append(batch.dim)
+            counts.append(len(batch))
+            z_parts.append(batch.z.ravel())
+            cov_parts.append(batch.cov.ravel())
+            sensor_parts.append(batch.sensor)
+            subject_parts.append(batch.subject)
+            origin_parts.append(recording.truth.origin[k][kind])
+
+    dim_of_batch = np.array(dims, dtype=np.int64)
+    rows_of_batch = np.array(counts, dtype=np.int64)
+    step_of_batch = np.repeat(steps, n_kinds)
+    frames_table = pa.table({
+        "step": pa.array(steps, pa.int64()),
+        "t": pa.array(times, pa.float64()),
+        "vehicles": _list_array(np.array([v.size for v in vehicles]),
+                                pa.array(_concat(vehicles, np.int64), pa.int64())),
+        "links": _list_array(
+            np.array([e.shape[0] for e in links]),
+            pa.FixedSizeListArray.from_arrays(
+                pa.array(_concat(links, np.int64, 2).ravel(), pa.int64()), 2),
+        ),
+        "batch_kinds": _list_array(n_kinds, pa.array(kinds, pa.string())),
+        "batch_dims": _list_array(n_kinds, pa.array(dim_of_batch, pa.int64())),
+    })
+
+    # one row per measurement: per-batch values repeated over the batch's rows
+    batch_of_row = np.repeat(np.arange(rows_of_batch.size), rows_of_batch)
+    first_row = np.cumsum(rows_of_batch) - rows_of_batch
+    dz_of_row = dim_of_batch[batch_of_row]
+    row_steps = step_of_batch[batch_of_row]
+    measurements_table = pa.table({
+        "step": pa.array(row_steps, pa.int64()),
+        "t": pa.array(times[row_steps], pa.float64()),
+        "kind": pc.take(pa.array(kinds, pa.string()), pa.array(batch_of_row, pa.int64())),
+        "row": pa.array(np.arange(batch_of_row.size) - first_row[batch_of_row], pa.int64()),
+        "sensor": pa.array(_concat(sensor_parts, np.int64), pa.int64()),
+        "subject": pa.array(_concat(subject_parts, np.int64), pa.int64()),
+        "origin": pa.array(_concat(origin_parts, np.int64), pa.int64()),
+        "z": _list_array(dz_of_row, pa.array(_concat(z_parts, np.float64), pa.float64())),
+        "cov": _list_array(dz_of_row**2, pa.array(_concat(cov_parts, np.float64), pa.float64())),
+    })
+    return frames_table, measurements_table
+
+
+def _truth_table(ids: IntArray, states: FloatArray, present: np.ndarray) -> pa.Table:
+    """Every (step, id) pair, step-major, with presence and the state components."""
+    n_steps, n, dim = states.shape
+    columns: dict[str, pa.Array] = {
+        "step": pa.array(np.repeat(np.arange(n_steps, dtype=np.int64), n), pa.int64()),
+        "id": pa.array(np.tile(ids, n_steps), pa.int64()),
+        "present": pa.array(present.ravel(), pa.bool_()),
+    }
+    flat = states.reshape(n_steps * n, dim)
+    for i in range(dim):
+        columns[f"x_{i}"] = pa.array(np.ascontiguousarray(flat[:, i]), pa.float64())
+    return pa.table(columns)
+
+
+def _poses_table(poses: FloatArray, infrastructure_ids: Sequence[int]) -> pa.Table:
+    ids = (np.asarray(infrastructure_ids, dtype=np.int64) if len(infrastructure_ids) == len(poses)
+           else np.full(len(poses), -1, dtype=np.int64))
+    return pa.table({
+        "sensor": pa.array(ids, pa.int64()),
+        "x": pa.array(np.ascontiguousarray(poses[:, 0]), pa.float64()),
+        "y": pa.array(np.ascontiguousarray(poses[:, 1]), pa.float64()),
+        "yaw": pa.array(np.ascontiguousarray(poses[:, 2]), pa.float64()),
+    })
+
+
+# ----------------------------------------------------------------------------
+# loading
+# ----------------------------------------------------------------------------
+
+
+def load_recording(folder: str | Path) -> Recording:
+    """Read a recording written by `save_recording` (or by hand, see the module docstring).
+
+    Raises `InvalidInputError` naming the file and the field when a file is missing or
+    its content is malformed.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InvalidInputError(f"recording folder {str(folder)!r} does not exist")
+    setup = _load_setup(folder / SETUP_FILE)
+    frames_table = _read_table(folder, FRAMES_FILE)
+    measurements_table = _read_table(folder, MEASUREMENTS_FILE)
+    frames, origin = _load_frames(frames_table, measurements_table)
+    n_steps = len(frames)
+    vehicle_ids, vehicle_states, vehicle_present = _load_truth(
+        _read_table(folder, TRUTH_VEHICLES_FILE), TRUTH_VEHICLES_FILE, n_steps)
+    feature_ids, feature_states, feature_present = _load_truth(
+        _read_table(folder, TRUTH_FEATURES_FILE), TRUTH_FEATURES_FILE, n_steps)
+    poses = _load_poses(_read_table(folder, SENSOR_POSES_FILE), setup.infrastructure_ids)
+    try:
+        truth = Truth(vehicle_ids, vehicle_states, vehicle_present, feature_ids, feature_states,
+                      feature_present, origin, poses)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"truth tables of {str(folder)!r}: {exc}") from exc
+    try:
+        return Recording(setup, frames, truth)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"recording {str(folder)!r} is inconsistent: {exc}") from exc
+
+
+@contextmanager
+def _field_errors(file: str, field: str) -> Iterator[None]:
+    """Turn whatever a malformed field makes the parsers raise into one clear error."""
+    try:
+        yield
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{file}: field {field!r}: {exc}") from exc
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        raise InvalidInputError(
+            f"{file}: field {field!r} is malformed ({type(exc).__name__}: {exc})"
+        ) from exc
+
+
+def _load_setup(path: Path) -> Setup:
+    file = path.name
+    if not path.is_file():
+        raise InvalidInputError(f"{file}: file is missing in {str(path.parent)!r}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InvalidInputError(f"{file}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise InvalidInputError(f"{file}: must hold a JSON object, got {type(data).__name__}")
+
+    def need(key: str) -> Any:
+        if key not in data:
+            raise InvalidInputError(f"{file}: field {key!r} is missing")
+        return data[key]
+
+    version = need("format_version")
+    if version != FORMAT_VERSION:
+        raise InvalidInputError(
+            f"{file}: field 'format_version' must be {FORMAT_VERSION}, got {version!r}"
+        )
+
+    def optional(key: str, parse: Any) -> Any:
+        value = data.get(key)
+        if value is None:
+            return None
+        with _field_errors(file, key):
+            return parse(value)
+
+    with _field_errors(file, "vehicle_layout"):
+        vehicle_layout = StateLayout.from_dict(need("vehicle_layout"))
+    with _field_errors(file, "vehicle_motion"):
+        vehicle_motion = motion_from_dict(need("vehicle_motion"))
+    with _field_errors(file, "vehicle_prior"):
+        vehicle_prior = StateSet.from_dict(need("vehicle_prior"))
+    sensors_raw = data.get("sensors", {})
+    if not isinstance(sensors_raw, dict):
+        raise InvalidInputError(f"{file}: field 'sensors' must map kinds to sensor models, "
+                                f"got {sensors_raw!r}")
+    sensors = {}
+    for kind, spec in sensors_raw.items():
+        with _field_errors(file, f"sensors.{kind}"):
+            sensors[kind] = sensor_from_dict(spec)
+    with _field_errors(file, "infrastructure_ids"):
+        infrastructure_ids = tuple(int(i) for i in data.get("infrastructure_ids", ()))
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise InvalidInputError(f"{file}: field 'description' must be a string, "
+                                f"got {description!r}")
+    try:
+        return Setup(
+            dt=need("dt"),
+            n_steps=need("n_steps"),
+            vehicle_layout=vehicle_layout,
+            vehicle_motion=vehicle_motion,
+            vehicle_prior=vehicle_prior,
+            sensors=sensors,
+            feature_layout=optional("feature_layout", StateLayout.from_dict),
+            feature_motion=optional("feature_motion", motion_from_dict),
+            feature_prior=optional("feature_prior", StateSet.from_dict),
+            birth_cov=optional("birth_cov", lambda v: np.asarray(v, dtype=np.float64)),
+            detection_probability=data.get("detection_probability", 1.0),
+            clutter_rate=data.get("clutter_rate", 0.0),
+            clutter_region=optional("clutter_region", lambda v: np.asarray(v, dtype=np.float64)),
+            infrastructure_ids=infrastructure_ids,
+            description=description,
+        )
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{file}: {exc}") from exc
+    except (TypeError, ValueError) as exc:  # e.g. "dt": "fast" reaching np.isfinite
+        raise InvalidInputError(f"{file}: a scalar field has the wrong type ({exc})") from exc
+
+
+def _read_table(folder: Path, file: str) -> pa.Table:
+    path = folder / file
+    if not path.is_file():
+        raise InvalidInputError(f"{file}: file is missing in {str(folder)!r}")
+    try:
+        return pq.read_table(path)
+    except (OSError, pa.ArrowException) as exc:
+        raise InvalidInputError(f"{file}: not a readable Parquet file ({exc})") from exc
+
+
+def _column(table: pa.Table, file: str, name: str, type_: pa.DataType) -> pa.Array:
+    """Column `name` cast (safely) to `type_`, without nulls, as one contiguous array."""
+    if name not in table.column_names:
+        raise InvalidInputError(
+            f"{file}: column {name!r} is missing; found columns {table.column_names}"
+        )
+    column = table.column(name)
+    try:
+        column = column.cast(type_, safe=True)
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError) as exc:
+        raise InvalidInputError(
+            f"{file}: column {name!r} must be {type_}, got {column.type} ({exc})"
+        ) from exc
+    array = column.combine_chunks()
+    nulls = array.null_count
+    inner = array
+    while nulls == 0 and (pa.types.is_list(inner.type) or pa.types.is_large_list(inner.type)):
+        inner = inner.flatten()  # null entries inside lists are malformed too
+        nulls = inner.null_count
+    if nulls:
+        raise InvalidInputError(f"{file}: column {name!r} has null values")
+    return array
+
+
+def _numpy(array: pa.Array, dtype: type) -> np.ndarray:
+    return np.asarray(array.to_numpy(zero_copy_only=False), dtype=dtype)
+
+
+def _list_parts(array: pa.Array) -> tuple[IntArray, pa.Array]:
+    """Lengths (n,) of a list array's entries and its flattened values."""
+    lengths = _numpy(pc.list_value_length(array), np.int64)
+    return lengths, array.flatten()
+
+
+_LIST_INT = pa.large_list(pa.int64())
+_LIST_FLOAT = pa.large_list(pa.float64())
+_LIST_STR = pa.large_list(pa.large_string())
+
+
+def _load_frames(
+    frames_table: pa.Table, measurements_table: pa.Table
+) -> tuple[list[Frame], list[dict[str, IntArray]]]:
+    """Frames and the per-step origins from frames.parquet and measurements.parquet."""
+    ff, mf = FRAMES_FILE, MEASUREMENTS_FILE
+    steps = _numpy(_column(frames_table, ff, "step", pa.int64()), np.int64)
+    n_steps = steps.size
+    order = np.argsort(steps, kind="stable")
+    if not np.array_equal(steps[order], np.arange(n_steps)):
+        raise InvalidInputError(
+            f"{ff}: column 'step' must hold each step 0..{n_steps - 1} exactly once, "
+            f"got {np.sort(steps)[:20].tolist()}"
+        )
+    if not np.array_equal(order, np.arange(n_steps)):
+        frames_table = frames_table.take(pa.array(order))
+    times = _numpy(_column(frames_table, ff, "t", pa.float64()), np.float64)
+    n_vehicles, vehicles = _list_parts(_column(frames_table, ff, "vehicles", _LIST_INT))
+    vehicles_flat = _numpy(vehicles, np.int64)
+    # links may be list<fixed_size_list<int64, 2>> (as written) or list<list<int64>>
+    n_links, link_items = _list_parts(
+        _column(frames_table, ff, "links", pa.large_list(_LIST_INT)))
+    pair_sizes, link_values = _list_parts(link_items)
+    if (pair_sizes != 2).any():
+        raise InvalidInputError(f"{ff}: column 'links' must hold [a, b] pairs, found an entry "
+                                f"of length {int(pair_sizes[pair_sizes != 2][0])}")
+    links_flat = _numpy(link_values, np.int64).reshape(-1, 2)
+    n_kinds, kinds = _list_parts(_column(frames_table, ff, "batch_kinds", _LIST_STR))
+    n_dims, dims = _list_parts(_column(frames_table, ff, "batch_dims", _LIST_INT))
+    if not np.array_equal(n_kinds, n_dims):
+        k = int(np.flatnonzero(n_kinds != n_dims)[0])
+        raise InvalidInputError(f"{ff}: step {k} has {n_kinds[k]} batch_kinds but "
+                                f"{n_dims[k]} batch_dims")
+    kind_of_batch = np.asarray(kinds.to_pylist(), dtype=object)
+    dim_of_batch = _numpy(dims, np.int64)
+    if (dim_of_batch < 1).any():
+        raise InvalidInputError(f"{ff}: column 'batch_dims' must be >= 1, "
+                                f"got {int(dim_of_batch.min())}")
+    step_of_batch = np.repeat(np.arange(n_steps), n_kinds)
+    kind_names = sorted(set(kind_of_batch.tolist()))
+    code_of_batch = np.searchsorted(np.array(kind_names, dtype=object), kind_of_batch)
+    code_of_batch = code_of_batch.astype(np.int64)
+    n_codes = max(len(kind_names), 1)
+    batch_key = step_of_batch * n_codes + code_of_batch
+    if np.unique(batch_key).size != batch_key.size:
+        values, counts = np.unique(batch_key, return_counts=True)
+        dup = int(values[counts > 1][0])
+        raise InvalidInputError(f"{ff}: step {dup // n_codes} lists kind "
+                                f"{kind_names[dup % n_codes]!r} twice in 'batch_kinds'")
+
+    # --- measurement rows → (batch, row), vectorised ---------------------------------
+    m_step = _numpy(_column(measurements_table, mf, "step", pa.int64()), np.int64)
+    m_kind = _column(measurements_table, mf, "kind", pa.large_string())
+    m_row = _numpy(_column(measurements_table, mf, "row", pa.int64()), np.int64)
+    m_code = pc.index_in(m_kind, value_set=pa.array(kind_names, pa.large_string()))
+    code = _numpy(m_code.fill_null(-1), np.int64)
+    key = m_step * n_codes + code
+    sorter = np.argsort(batch_key, kind="stable")
+    pos = np.minimum(np.searchsorted(batch_key, key, sorter=sorter), max(batch_key.size - 1, 0))
+    found = (code >= 0) & (batch_key.size > 0)
+    if batch_key.size:
+        found &= batch_key[sorter[pos]] == key
+    if not found.all():
+        i = int(np.flatnonzero(~found)[0])
+        raise InvalidInputError(
+            f"{mf}: row {i} has step {int(m_step[i])} and kind {m_kind[i].as_py()!r}, "
+            f"but {ff} lists no such batch at that step (column 'batch_kinds')"
+        )
+    batch_of_row = sorter[pos] if batch_key.size else np.zeros(0, dtype=np.int64)
+    perm = np.lexsort((m_row, batch_of_row))
+    identity = np.array_equal(perm, np.arange(perm.size))
+    batch_of_row = batch_of_row[perm]
+    rows_of_batch = np.bincount(batch_of_row, minlength=batch_key.size)
+    first_row = np.cumsum(rows_of_batch) - rows_of_batch
+    expected = np.arange(perm.size) - first_row[batch_of_row]
+    if not np.array_equal(m_row[perm], expected):
+        i = int(np.flatnonzero(m_row[perm] != expected)[0])
+        b = int(batch_of_row[i])
+        raise InvalidInputError(
+            f"{mf}: column 'row' must number the rows of each batch 0..M-1 exactly once; "
+            f"step {int(step_of_batch[b])}, kind {kind_of_batch[b]!r} has row "
+            f"{int(m_row[perm][i])} where {int(expected[i])} was expected"
+        )
+    table = measurements_table if identity else measurements_table.take(pa.array(perm))
+
+    if "t" in table.column_names:  # optional: a convenience copy of the frame time
+        m_t = _numpy(_column(table, mf, "t", pa.float64()), np.float64)
+        wrong = m_t != times[step_of_batch[batch_of_row]]
+        if wrong.any():
+            i = int(np.flatnonzero(wrong)[0])
+            raise InvalidInputError(f"{mf}: column 't' is {m_t[i]!r} at step "
+                                    f"{int(step_of_batch[batch_of_row[i]])}, {ff} says "
+                                    f"{times[step_of_batch[batch_of_row[i]]]!r}")
+    sensor = _numpy(_column(table, mf, "sensor", pa.int64()), np.int64)
+    subject = _numpy(_column(table, mf, "subject", pa.int64()), np.int64)
+    origin = _numpy(_column(table, mf, "origin", pa.int64()), np.int64)
+    dz_of_row = dim_of_batch[batch_of_row]
+    z_len, z_values = _list_parts(_column(table, mf, "z", _LIST_FLOAT))
+    cov_len, cov_values = _list_parts(_column(table, mf, "cov", _LIST_FLOAT))
+    for name, have, want in (("z", z_len, dz_of_row), ("cov", cov_len, dz_of_row**2)):
+        if not np.array_equal(have, want):
+            i = int(np.flatnonzero(have != want)[0])
+            b = int(batch_of_row[i])
+            raise InvalidInputError(
+                f"{mf}: column {name!r} of step {int(step_of_batch[b])}, kind "
+                f"{kind_of_batch[b]!r}, row {int(expected[i])} has {int(have[i])} values, "
+                f"expected {int(want[i])} (batch_dims says dz = {int(dim_of_batch[b])})"
+            )
+    z_flat = _numpy(z_values, np.float64)
+    cov_flat = _numpy(cov_values, np.float64)
+    # value offsets of each batch inside the flat z / cov arrays
+    z_end = np.cumsum(rows_of_batch * dim_of_batch)
+    cov_end = np.cumsum(rows_of_batch * dim_of_batch**2)
+    row_end = np.cumsum(rows_of_batch)
+
+    frames: list[Frame] = []
+    origins: list[dict[str, IntArray]] = []
+    vehicle_end = np.cumsum(n_vehicles)
+    link_end = np.cumsum(n_links)
+    batch_end = np.cumsum(n_kinds)
+    for k in range(n_steps):
+        batches: dict[str, Batch] = {}
+        step_origin: dict[str, IntArray] = {}
+        for b in range(int(batch_end[k] - n_kinds[k]), int(batch_end[k])):
+            kind, dz, m = str(kind_of_batch[b]), int(dim_of_batch[b]), int(rows_of_batch[b])
+            r0, r1 = int(row_end[b]) - m, int(row_end[b])
+            try:
+                batches[kind] = Batch(
+                    z_flat[int(z_end[b]) - m * dz:int(z_end[b])].reshape(m, dz),
+                    cov_flat[int(cov_end[b]) - m * dz * dz:int(cov_end[b])].reshape(m, dz, dz),
+                    sensor[r0:r1],
+                    subject[r0:r1],
+                )
+            except InvalidInputError as exc:
+                raise InvalidInputError(f"{mf}: step {k}, kind {kind!r}: {exc}") from exc
+            step_origin[kind] = origin[r0:r1]
+        v1, l1 = int(vehicle_end[k]), int(link_end[k])
+        try:
+            frames.append(Frame(
+                k, times[k], vehicles_flat[v1 - int(n_vehicles[k]):v1], batches,
+                links_flat[l1 - int(n_links[k]):l1],
+            ))
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"{ff}: step {k}: {exc}") from exc
+        origins.append(step_origin)
+    return frames, origins
+
+
+def _load_truth(
+    table: pa.Table, file: str, n_steps: int
+) -> tuple[IntArray, FloatArray, np.ndarray]:
+    """ids (N,), states (T, N, d) and presence (T, N) from a truth_*.parquet table."""
+    step = _numpy(_column(table, file, "step", pa.int64()), np.int64)
+    ids = _numpy(_column(table, file, "id", pa.int64()), np.int64)
+    present = _numpy(_column(table, file, "present", pa.bool_()), bool)
+    indices = sorted(int(m.group(1)) for c in table.column_names
+                     if (m := _STATE_COLUMN.fullmatch(c)))
+    if indices != list(range(len(indices))):
+        raise InvalidInputError(
+            f"{file}: state columns must be x_0 … x_{{d-1}} without gaps, got "
+            f"{[f'x_{i}' for i in indices]}"
+        )
+    dim = len(indices)
+    bad = (step < 0) | (step >= n_steps)
+    if bad.any():
+        raise InvalidInputError(f"{file}: column 'step' must lie in [0, {n_steps}) "
+                                f"(frames.parquet has {n_steps} steps), got {int(step[bad][0])}")
+    # ids in order of first appearance, so that a file written step-major keeps its order
+    unique, first, inverse = np.unique(ids, return_index=True, return_inverse=True)
+    rank = np.empty(unique.size, dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(unique.size)
+    column_of_row = rank[inverse.ravel()]
+    entity_ids = unique[np.argsort(first, kind="stable")]
+    cell = step * unique.size + column_of_row
+    if np.unique(cell).size != cell.size:
+        values, counts = np.unique(cell, return_counts=True)
+        dup = int(values[counts > 1][0])
+        raise InvalidInputError(f"{file}: step {dup // unique.size} has id "
+                                f"{int(entity_ids[dup % unique.size])} twice")
+    states = np.zeros((n_steps, unique.size, dim), dtype=np.float64)
+    presence = np.zeros((n_steps, unique.size), dtype=bool)
+    for i in range(dim):
+        states[step, column_of_row, i] = _numpy(
+            _column(table, file, f"x_{i}", pa.float64()), np.float64)
+    presence[step, column_of_row] = present
+    return entity_ids, states, presence
+
+
+def _load_poses(table: pa.Table, infrastructure_ids: Sequence[int]) -> FloatArray:
+    file = SENSOR_POSES_FILE
+    sensor = _numpy(_column(table, file, "sensor", pa.int64()), np.int64)
+    columns = [_numpy(_column(table, file, name, pa.float64()), np.float64)
+               for name in ("x", "y", "yaw")]
+    poses = np.stack(columns, axis=1).reshape(-1, 3)
+    if (sensor != -1).any() and not np.array_equal(sensor, np.asarray(infrastructure_ids)):
+        raise InvalidInputError(
+            f"{file}: column 'sensor' must list setup.json's infrastructure_ids "
+            f"{list(infrastructure_ids)} in order (or -1), got {sensor.tolist()}"
+        )
+    return poses

@@ -1,0 +1,166 @@
+"""Errors and summary statistics of estimates against the truth (DESIGN §6).
+
+- Position error: Euclidean distance between estimated and true position (m).
+- Velocity error: Euclidean distance of the velocity components (m/s), where the
+  layout has them.
+- Heading error: |wrap(α̂ − α)| in rad, wrapped to [−π, π), where the layout has one.
+- RMSE = sqrt(mean of the squared 2-D position error) over whatever set of steps,
+  runs and entities is pooled; `per_entity_rmse` pools steps (and runs) per id.
+- `ecdf`: the empirical CDF (sorted values and probabilities i/n).
+- `association_accuracy`: share of rows whose decided origin equals the true one.
+- `nees`: normalised estimation error squared (x − x̂)ᵀ P⁻¹ (x − x̂), for consistency
+  checks against χ² bounds.
+
+Only entities that are both estimated and present in the truth at a step are scored;
+features are matched by id.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from cooploc.types import Estimate, FloatArray, IntArray, Recording, StateLayout, StateSet
+
+__all__ = [
+    "FEATURE",
+    "VEHICLE",
+    "ErrorTable",
+    "association_accuracy",
+    "ecdf",
+    "evaluate",
+    "nees",
+    "per_entity_rmse",
+    "rmse",
+    "wrap_angle",
+]
+
+VEHICLE, FEATURE = 0, 1
+KIND_NAMES = {VEHICLE: "vehicle", FEATURE: "feature"}
+
+
+def wrap_angle(angle: npt.ArrayLike) -> FloatArray:
+    """Angles wrapped to [−π, π)."""
+    return (np.asarray(angle, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def rmse(errors: npt.ArrayLike) -> float:
+    """sqrt(mean(e²)) of the finite entries; NaN for none."""
+    e = np.asarray(errors, dtype=float)
+    e = e[np.isfinite(e)]
+    return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
+
+
+def per_entity_rmse(ids: IntArray, errors: FloatArray) -> dict[int, float]:
+    """RMSE per entity id (pooled over everything else in the arrays)."""
+    ids = np.asarray(ids)
+    errors = np.asarray(errors, dtype=float)
+    unique, inverse = np.unique(ids, return_inverse=True)
+    sq = np.bincount(inverse, weights=errors**2, minlength=unique.size)
+    count = np.bincount(inverse, minlength=unique.size)
+    return {int(i): float(np.sqrt(s / c)) for i, s, c in zip(unique, sq, count, strict=True)}
+
+
+def ecdf(values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Empirical CDF: sorted values x and P(X ≤ x_i) = i/n."""
+    x = np.sort(np.asarray(values, dtype=float).ravel())
+    return x, np.arange(1, x.size + 1) / max(x.size, 1)
+
+
+def association_accuracy(decided: IntArray, true_origin: IntArray) -> float:
+    """Correct decisions / all decisions (decided origin ids against the true ones)."""
+    decided, true_origin = np.asarray(decided), np.asarray(true_origin)
+    return float(np.mean(decided == true_origin)) if decided.size else float("nan")
+
+
+def nees(estimate: StateSet, true_states: FloatArray) -> FloatArray:
+    """(x − x̂)ᵀ P⁻¹ (x − x̂) per entity; χ²(dx) distributed for a consistent filter."""
+    residual = true_states - estimate.mean
+    return np.einsum("ni,ni->n", residual,
+                     np.linalg.solve(estimate.cov, residual[..., None])[..., 0])
+
+
+@dataclass(frozen=True)
+class ErrorTable:
+    """Errors in long format, one row per (step, entity); columns are arrays.
+
+    `err_vel` and `err_heading` are NaN where the layout has no such component.
+    """
+
+    step: IntArray
+    t: FloatArray
+    kind: IntArray
+    id: IntArray
+    err_pos: FloatArray
+    err_vel: FloatArray
+    err_heading: FloatArray
+
+    def __len__(self) -> int:
+        return self.step.size
+
+    def select(self, rows: npt.ArrayLike) -> ErrorTable:
+        return ErrorTable(*(getattr(self, f)[rows] for f in self.__dataclass_fields__))
+
+    @classmethod
+    def concatenate(cls, tables: Sequence[ErrorTable]) -> ErrorTable:
+        if not tables:
+            empty = np.zeros(0)
+            return cls(empty.astype(int), empty, empty.astype(int), empty.astype(int),
+                       empty, empty, empty)
+        return cls(*(np.concatenate([getattr(t, f) for t in tables])
+                     for f in cls.__dataclass_fields__))
+
+
+def _entity_errors(est: StateSet, true: FloatArray, layout: StateLayout
+                   ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    pos = list(layout.position)
+    err_pos = np.linalg.norm(est.mean[:, pos] - true[:, pos], axis=1)
+    err_vel = np.full(err_pos.shape, np.nan)
+    if layout.velocity is not None:
+        vel = list(layout.velocity)
+        err_vel = np.linalg.norm(est.mean[:, vel] - true[:, vel], axis=1)
+    err_heading = np.full(err_pos.shape, np.nan)
+    if layout.heading is not None:
+        err_heading = np.abs(wrap_angle(est.mean[:, layout.heading] - true[:, layout.heading]))
+    return err_pos, err_vel, err_heading
+
+
+def _scored(est: StateSet, truth_ids: IntArray, present: np.ndarray) -> tuple[np.ndarray, IntArray]:
+    """Rows of `est` that are present in truth, and their column in the truth arrays."""
+    order = np.argsort(truth_ids)
+    pos = np.searchsorted(truth_ids, est.ids, sorter=order)
+    pos = np.minimum(pos, max(truth_ids.size - 1, 0))
+    col = order[pos] if truth_ids.size else np.zeros(est.ids.size, dtype=np.int64)
+    ok = (truth_ids[col] == est.ids) if truth_ids.size else np.zeros(est.ids.size, bool)
+    ok &= present[col] if truth_ids.size else ok
+    return ok, col
+
+
+def evaluate(recording: Recording, estimates: Sequence[Estimate]) -> ErrorTable:
+    """Errors of every estimated vehicle and feature at every step of the recording."""
+    truth, setup = recording.truth, recording.setup
+    columns: list[tuple] = []
+    for k, estimate in enumerate(estimates):
+        t = recording.frames[k].t
+        parts = [(VEHICLE, estimate.vehicles, truth.vehicle_ids, truth.vehicle_states[k],
+                  truth.vehicle_present[k], setup.vehicle_layout)]
+        if estimate.features is not None and setup.feature_layout is not None:
+            parts.append((FEATURE, estimate.features, truth.feature_ids, truth.feature_states[k],
+                          truth.feature_present[k], setup.feature_layout))
+        for kind, est, ids, states, present, layout in parts:
+            if len(est) == 0:
+                continue
+            ok, col = _scored(est, ids, present)
+            if not ok.any():
+                continue
+            chosen = StateSet(est.ids[ok], est.mean[ok], est.cov[ok]) if not ok.all() else est
+            e_pos, e_vel, e_head = _entity_errors(chosen, states[col[ok]], layout)
+            n = e_pos.size
+            columns.append((np.full(n, k), np.full(n, t), np.full(n, kind), chosen.ids,
+                            e_pos, e_vel, e_head))
+    if not columns:
+        return ErrorTable.concatenate([])
+    return ErrorTable(*(np.concatenate(c) for c in zip(*columns, strict=True)))

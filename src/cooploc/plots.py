@@ -1,0 +1,158 @@
+"""Figures and Markdown reports of experiment results (matplotlib, Agg backend).
+
+- `rmse_over_time`: RMSE over runs at each step, one panel per vehicle, one line per
+  estimator.
+- `per_run_rmse_cdf`: empirical CDF of the per-run vehicle RMSE (Fröhle Fig. 3).
+- `sweep_plot`: trajectory-average RMSE against a swept parameter, one panel per
+  vehicle (Fröhle Figs. 4–5); the known-association bound is drawn dashed.
+- `run_figures` / `run_report`: what `cooploc run` writes beside summary.json.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; no display on servers and CI
+import matplotlib.pyplot as plt
+import numpy as np
+
+from cooploc.metrics import VEHICLE, ecdf
+
+if TYPE_CHECKING:
+    from cooploc.experiment import ExperimentResult
+
+__all__ = ["per_run_rmse_cdf", "rmse_over_time", "run_figures", "run_report", "sweep_plot"]
+
+MAX_PANELS = 6  # more vehicles than this: the first ones are drawn, the pooled RMSE is in the report
+BOUND_ESTIMATORS = ("oracle-kf",)
+
+
+def _style(name: str) -> dict[str, Any]:
+    """Known-association bounds dashed, so that nobody mistakes them for a method."""
+    return {"linestyle": "--", "color": "0.3"} if name in BOUND_ESTIMATORS else {}
+
+
+def _panels(n: int, title: str) -> tuple[plt.Figure, np.ndarray]:
+    cols = min(n, 3)
+    rows = int(np.ceil(n / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.3 * rows), squeeze=False)
+    fig.suptitle(title)
+    for ax in axes.ravel()[n:]:
+        ax.set_visible(False)
+    return fig, axes.ravel()
+
+
+def _save(fig: plt.Figure, axes: np.ndarray, path: Path) -> Path:
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def rmse_over_time(result: ExperimentResult, path: Path) -> Path:
+    """RMSE (over runs) of each vehicle at each time, per estimator."""
+    names = [e.name for e in result.config.estimators]
+    tables = {name: result.errors(name)[1] for name in names}
+    ids = np.unique(np.concatenate([t.id[t.kind == VEHICLE] for t in tables.values()]))
+    ids = ids[:MAX_PANELS]
+    fig, axes = _panels(max(ids.size, 1), f"{result.config.scenario}: position RMSE over time "
+                        f"({result.config.runs} runs)")
+    for ax, vid in zip(axes, ids, strict=False):
+        for name, table in tables.items():
+            rows = (table.kind == VEHICLE) & (table.id == vid)
+            t, inverse = np.unique(table.t[rows], return_inverse=True)
+            sq = np.bincount(inverse, weights=table.err_pos[rows] ** 2, minlength=t.size)
+            count = np.bincount(inverse, minlength=t.size)
+            ax.plot(t, np.sqrt(sq / np.maximum(count, 1)), label=name, lw=1, **_style(name))
+        ax.set_title(f"vehicle {vid}")
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("position RMSE [m]")
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+    return _save(fig, axes, path)
+
+
+def per_run_rmse_cdf(per_run: Mapping[str, Mapping[str, Sequence[float | None]]], path: Path,
+                     title: str) -> Path:
+    """CDF of per-run RMSE: per_run[estimator][vehicle id] = RMSE of each run."""
+    ids = sorted({vid for by_id in per_run.values() for vid in by_id}, key=int)[:MAX_PANELS]
+    fig, axes = _panels(max(len(ids), 1), title)
+    for ax, vid in zip(axes, ids, strict=False):
+        for name, by_id in per_run.items():
+            values = [v for v in by_id.get(vid, []) if v is not None]
+            if values:
+                x, p = ecdf(values)
+                ax.step(x, p, where="post", label=name, **_style(name))
+        ax.set_title(f"vehicle {vid}")
+        ax.set_xlabel("per-run position RMSE [m]")
+        ax.set_ylabel("CDF")
+        ax.grid(alpha=0.3)
+    return _save(fig, axes, path)
+
+
+def sweep_plot(x: Sequence[float], curves: Mapping[str, Mapping[str, Sequence[float]]],
+               path: Path, title: str, xlabel: str, log_x: bool = False) -> Path:
+    """curves[estimator][vehicle id] = RMSE at each x."""
+    ids = sorted({vid for c in curves.values() for vid in c}, key=int)[:MAX_PANELS]
+    fig, axes = _panels(max(len(ids), 1), title)
+    for ax, vid in zip(axes, ids, strict=False):
+        for name, by_id in curves.items():
+            if vid in by_id:
+                ax.plot(x, by_id[vid], marker="o", ms=4, label=name, **_style(name))
+        ax.set_title(f"vehicle {vid}")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("trajectory-average RMSE [m]")
+        if log_x:
+            ax.set_xscale("log")
+        ax.grid(alpha=0.3)
+    return _save(fig, axes, path)
+
+
+def run_figures(result: ExperimentResult, summary: Mapping[str, Any], folder: Path
+                ) -> list[tuple[str, str]]:
+    """The figures of `cooploc run`: [(caption, file name)]."""
+    figures = [("Position RMSE over time per vehicle", "rmse_over_time.png"),
+               ("CDF of per-run vehicle RMSE", "rmse_cdf.png")]
+    rmse_over_time(result, folder / figures[0][1])
+    per_run = {name: est["per_run_vehicle_rmse"] for name, est in summary["estimators"].items()}
+    per_run_rmse_cdf(per_run, folder / figures[1][1],
+                     f"{summary['scenario']}: per-run vehicle RMSE ({summary['runs']} runs)")
+    return figures
+
+
+def _fmt(value: float | None, digits: int = 3) -> str:
+    return "–" if value is None else f"{value:.{digits}g}"
+
+
+def run_report(summary: Mapping[str, Any], figures: Sequence[tuple[str, str]]) -> str:
+    """Short Markdown report of a `cooploc run` results folder."""
+    est = summary["estimators"]
+    ids = sorted({vid for e in est.values() for vid in e["vehicle_rmse"]}, key=int)
+    shown = ids[:MAX_PANELS]
+    lines = [
+        f"# {summary['scenario']}: {summary['runs']} runs, seed {summary['seed']}",
+        "",
+        f"cooploc {summary['cooploc_version']}. RMSE = sqrt(mean squared 2-D position error)"
+        " over steps and runs. Estimators marked † know the true association "
+        "(accuracy bound, not a method).",
+        "",
+        "| estimator | " + " | ".join(f"vehicle {v} [m]" for v in shown)
+        + " | all vehicles [m] | features [m] | steps/s |",
+        "|---" * (len(shown) + 4) + "|",
+    ]
+    for name, e in est.items():
+        mark = " †" if name in BOUND_ESTIMATORS else ""
+        cells = [_fmt(e["vehicle_rmse"].get(v)) for v in shown]
+        lines.append(f"| {name}{mark} | " + " | ".join(cells)
+                     + f" | {_fmt(e['vehicle_rmse_all'])} | {_fmt(e['feature_rmse_all'])}"
+                     f" | {_fmt(e['steps_per_second'], 4)} |")
+    lines.append("")
+    for caption, name in figures:
+        lines += [f"![{caption}]({name})", ""]
+    lines.append("Data: `summary.json`, `errors.parquet`; configuration: `config.toml`.")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,237 @@
+"""Sensor models: simulation of measurement batches and their likelihoods.
+
+- `GnssPosition` — absolute position of a vehicle, Fröhle 2018 eq. (30):
+  z = H x + w, H = [1 0]ᵀ ⊗ I_2 picks the position, w ~ N(0, W_s) with a covariance
+  per vehicle s (W_s = σ_s² I_2 in the paper). `state_indices` selects other
+  components (e.g. position and velocity for Brambilla 2020 eq. (3)).
+- `RelativePosition` — vehicle-to-feature (V2F) relative position, Fröhle §V-A:
+  z = H f_k − H x_s + w, i.e. H^(V2F) = [H, −H] on [f; x], w ~ N(0, W_s) with a
+  covariance per sensing vehicle. The association is unknown to the receiver: rows
+  carry `subject = -1` and their order is shuffled per vehicle; the true feature id is
+  returned separately as the row's origin (truth). Optional missed detections
+  (probability 1 − P_D) and Poisson clutter (rate λ per vehicle and step, uniform over
+  a box in measurement space, origin −1).
+
+Every simulator is vectorised over entities (and vehicle × feature pairs) and takes
+the random generator as an argument.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Protocol, runtime_checkable
+
+import numpy as np
+import numpy.typing as npt
+
+from cooploc.errors import InvalidInputError
+from cooploc.gaussian import gaussian_logpdf
+from cooploc.motion import sample_gaussian
+from cooploc.types import Batch, FloatArray, IntArray, check_covariances, float_array
+
+__all__ = [
+    "GnssPosition",
+    "RelativePosition",
+    "SensorModel",
+    "selection_matrix",
+    "sensor_from_dict",
+]
+
+
+@runtime_checkable
+class SensorModel(Protocol):
+    """A sensor that produces one kind of `Batch`."""
+
+    name: ClassVar[str]
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+
+def selection_matrix(indices: tuple[int, ...], dim: int) -> FloatArray:
+    """H (len(indices), dim) that picks the given state components."""
+    H = np.zeros((len(indices), dim))
+    H[np.arange(len(indices)), indices] = 1.0
+    return H
+
+
+@dataclass(frozen=True)
+class _PerEntityCovariance:
+    """Noise covariance per entity id, with a default for ids not listed."""
+
+    covariances: Mapping[int, FloatArray] = field(default_factory=dict)
+    default_cov: FloatArray | None = None
+    state_indices: tuple[int, ...] = (0, 1)
+
+    def __post_init__(self) -> None:
+        dz = len(self.state_indices)
+        cls = type(self).__name__
+        covs = {}
+        for key, value in dict(self.covariances).items():
+            cov = float_array(f"{cls}.covariances[{key}]", value, (dz, dz))
+            check_covariances(f"{cls}.covariances[{key}]", cov[None])
+            covs[int(key)] = cov
+        object.__setattr__(self, "covariances", covs)
+        if self.default_cov is not None:
+            cov = float_array(f"{cls}.default_cov", self.default_cov, (dz, dz))
+            check_covariances(f"{cls}.default_cov", cov[None])
+            object.__setattr__(self, "default_cov", cov)
+        object.__setattr__(self, "state_indices", tuple(int(i) for i in self.state_indices))
+
+    @property
+    def dim(self) -> int:
+        return len(self.state_indices)
+
+    def covariance_of(self, ids: npt.ArrayLike) -> FloatArray:
+        """(n, dz, dz) noise covariance of each entity id."""
+        ids = np.asarray(ids, dtype=np.int64)
+        out = np.empty((ids.size, self.dim, self.dim))
+        for i, entity in enumerate(ids.tolist()):
+            cov = self.covariances.get(entity, self.default_cov)
+            if cov is None:
+                raise InvalidInputError(
+                    f"{type(self).__name__} has no covariance for entity {entity} and no default_cov"
+                )
+            out[i] = cov
+        return out
+
+    def observation_matrix(self, dim: int) -> FloatArray:
+        return selection_matrix(self.state_indices, dim)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "model": self.name,  # type: ignore[attr-defined]
+            "covariances": {str(k): v.tolist() for k, v in self.covariances.items()},
+            "default_cov": None if self.default_cov is None else self.default_cov.tolist(),
+            "state_indices": list(self.state_indices),
+        }
+
+
+@dataclass(frozen=True)
+class GnssPosition(_PerEntityCovariance):
+    """GNSS fix of each vehicle: z = H x + w, w ~ N(0, W_s) (Fröhle eq. 30)."""
+
+    name: ClassVar[str] = "gnss-position"
+
+    def measure(self, ids: npt.ArrayLike, states: FloatArray, rng: np.random.Generator) -> Batch:
+        """One fix per vehicle: ids (n,), true states (n, dx) → Batch with sensor = subject = id."""
+        ids = np.asarray(ids, dtype=np.int64)
+        cov = self.covariance_of(ids)
+        H = self.observation_matrix(states.shape[1])
+        z = states @ H.T + sample_gaussian(cov, rng) if ids.size else np.zeros((0, self.dim))
+        return Batch(z, cov, ids, ids)
+
+    def log_likelihood(self, batch: Batch, states: FloatArray) -> FloatArray:
+        """log p(z_m | x) for every row m against states (..., M, dx) aligned with rows."""
+        H = self.observation_matrix(states.shape[-1])
+        return gaussian_logpdf(batch.z - states @ H.T, batch.cov)
+
+
+@dataclass(frozen=True)
+class RelativePosition(_PerEntityCovariance):
+    """V2F relative position: z = H f − H x + w, covariance per sensing vehicle (Fröhle §V-A)."""
+
+    name: ClassVar[str] = "relative-position"
+
+    def measure(
+        self,
+        vehicle_ids: npt.ArrayLike,
+        vehicle_states: FloatArray,
+        feature_ids: npt.ArrayLike,
+        feature_states: FloatArray,
+        rng: np.random.Generator,
+        *,
+        visible: npt.NDArray[np.bool_] | None = None,
+        detection_probability: float = 1.0,
+        clutter_rate: float = 0.0,
+        clutter_region: FloatArray | None = None,
+        shuffle: bool = True,
+    ) -> tuple[Batch, IntArray]:
+        """Detections of every visible feature by every vehicle.
+
+        Parameters
+        ----------
+        vehicle_ids (n,), vehicle_states (n, dx), feature_ids (K,), feature_states (K, df).
+        visible : (n, K) which pairs can be sensed (default: all).
+        detection_probability : P_D, each visible pair is detected with this probability.
+        clutter_rate : λ, Poisson mean of clutter rows per vehicle.
+        clutter_region : (dz, 2) box in measurement space the clutter is uniform over.
+        shuffle : permute the rows of each vehicle randomly (the receiver cannot tell order).
+
+        Returns
+        -------
+        batch : rows with `sensor` = vehicle id and `subject` = -1.
+        origin : (M,) true feature id of each row, -1 for clutter.
+        """
+        vehicle_ids = np.asarray(vehicle_ids, dtype=np.int64)
+        feature_ids = np.asarray(feature_ids, dtype=np.int64)
+        n, K = vehicle_ids.size, feature_ids.size
+        if not 0.0 < detection_probability <= 1.0:
+            raise InvalidInputError(
+                f"detection_probability must lie in (0, 1], got {detection_probability!r}"
+            )
+        if clutter_rate < 0:
+            raise InvalidInputError(f"clutter_rate must be >= 0, got {clutter_rate!r}")
+        if clutter_rate > 0 and clutter_region is None:
+            raise InvalidInputError("clutter_region is required when clutter_rate > 0")
+        detected = np.ones((n, K), dtype=bool) if visible is None else np.array(visible, dtype=bool)
+        if detected.shape != (n, K):
+            raise InvalidInputError(f"visible must have shape {(n, K)}, got {detected.shape}")
+        if detection_probability < 1.0:
+            detected &= rng.random((n, K)) < detection_probability
+        vi, fi = np.nonzero(detected)  # row-major: grouped by vehicle
+        vehicle_states = np.asarray(vehicle_states, dtype=float)
+        feature_states = np.asarray(feature_states, dtype=float)
+        Hx = self.observation_matrix(vehicle_states.shape[1])
+        Hf = self.observation_matrix(feature_states.shape[1])
+        cov_vehicle = self.covariance_of(vehicle_ids)
+        cov = cov_vehicle[vi]
+        z = feature_states[fi] @ Hf.T - vehicle_states[vi] @ Hx.T
+        if vi.size:
+            z = z + sample_gaussian(cov, rng)
+        sensor = vehicle_ids[vi]
+        origin = feature_ids[fi]
+        if clutter_rate > 0 and n:
+            region = float_array("clutter_region", clutter_region, (self.dim, 2))
+            counts = rng.poisson(clutter_rate, size=n)
+            owner = np.repeat(np.arange(n), counts)
+            low, high = region[:, 0], region[:, 1]
+            z_clutter = low + (high - low) * rng.random((owner.size, self.dim))
+            z = np.concatenate([z, z_clutter])
+            cov = np.concatenate([cov, cov_vehicle[owner]])
+            sensor = np.concatenate([sensor, vehicle_ids[owner]])
+            origin = np.concatenate([origin, np.full(owner.size, -1, dtype=np.int64)])
+        order = np.arange(sensor.size)
+        if shuffle and sensor.size:
+            # group rows by sensing vehicle (in frame order) and permute inside each group
+            group = np.searchsorted(np.sort(vehicle_ids), sensor)
+            order = np.lexsort((rng.random(sensor.size), group))
+        batch = Batch(z[order], cov[order], sensor[order], np.full(sensor.size, -1, dtype=np.int64))
+        return batch, origin[order]
+
+    def log_likelihood(self, z: FloatArray, cov: FloatArray, feature: FloatArray,
+                       vehicle: FloatArray) -> FloatArray:
+        """log N(z; H f − H x, W), broadcast over leading dimensions of all arguments."""
+        Hx = self.observation_matrix(vehicle.shape[-1])
+        Hf = self.observation_matrix(feature.shape[-1])
+        return gaussian_logpdf(z - (feature @ Hf.T - vehicle @ Hx.T), cov)
+
+
+_SENSORS = (GnssPosition, RelativePosition)
+
+
+def sensor_from_dict(data: Mapping[str, Any]) -> SensorModel:
+    """Rebuild a sensor model from its `to_dict()` form."""
+    fields = dict(data)
+    name = fields.pop("model", None)
+    for model in _SENSORS:
+        if model.name == name:
+            covs = {int(k): np.asarray(v) for k, v in fields.pop("covariances", {}).items()}
+            default = fields.pop("default_cov", None)
+            return model(
+                covariances=covs,
+                default_cov=None if default is None else np.asarray(default),
+                state_indices=tuple(fields.pop("state_indices", (0, 1))),
+                **fields,
+            )
+    raise InvalidInputError(f"sensor model {name!r} is unknown; known: {[m.name for m in _SENSORS]}")

@@ -1,0 +1,292 @@
+"""`cooploc.sensors`: measurement simulation (shapes, noise, association bookkeeping,
+detection and clutter statistics) and likelihoods against scipy.
+
+Statistical checks use 6-sigma bounds (binomial / Poisson / sample covariance), so a
+correct simulator fails them with probability below ~1e-8 for any seed.
+"""
+
+from __future__ import annotations
+
+import json
+from itertools import permutations
+
+import numpy as np
+import pytest
+from scipy.stats import multivariate_normal
+
+from cooploc.errors import InvalidInputError
+from cooploc.sensors import (
+    GnssPosition,
+    RelativePosition,
+    selection_matrix,
+    sensor_from_dict,
+)
+from cooploc.types import Batch
+from helpers import assert_covariance_close
+
+N_SIGMA = 6.0
+# Likelihoods: Cholesky (ours) vs eigendecomposition (scipy), values of order 10.
+LOGPDF_ATOL = 1e-9
+
+
+def test_selection_matrix() -> None:
+    np.testing.assert_array_equal(selection_matrix((0, 1), 4), [[1, 0, 0, 0], [0, 1, 0, 0]])
+    # Fröhle eq. (30): H = [1 0]ᵀ ⊗ I_2 ... as a row selector, [1, 0] ⊗ I_2
+    np.testing.assert_array_equal(selection_matrix((0, 1), 4), np.kron([[1, 0]], np.eye(2)))
+    np.testing.assert_array_equal(selection_matrix((2, 0), 3), [[0, 0, 1], [1, 0, 0]])
+
+
+# ----------------------------------------------------------------------------
+# GNSS
+# ----------------------------------------------------------------------------
+
+
+def paper_gnss(default: float | None = None) -> GnssPosition:
+    return GnssPosition({0: 0.01 * np.eye(2), 1: 15.0 * np.eye(2)},
+                        None if default is None else default * np.eye(2))
+
+
+def test_gnss_covariance_lookup_per_entity() -> None:
+    gnss = paper_gnss(default=2.0)
+    cov = gnss.covariance_of([1, 0, 7, 1])
+    np.testing.assert_array_equal(cov, np.array([15.0, 0.01, 2.0, 15.0])[:, None, None] * np.eye(2))
+    with pytest.raises(InvalidInputError, match="entity 7"):
+        paper_gnss().covariance_of([0, 7])
+
+
+def test_gnss_rejects_bad_covariance() -> None:
+    with pytest.raises(InvalidInputError, match="positive definite"):
+        GnssPosition({0: np.diag([1.0, -1.0])})
+    with pytest.raises(InvalidInputError, match="shape"):
+        GnssPosition({0: np.eye(3)})
+
+
+def test_gnss_measure_shapes_and_ids(rng: np.random.Generator) -> None:
+    gnss = paper_gnss()
+    ids = np.array([1, 0])
+    states = rng.standard_normal((2, 4))
+    batch = gnss.measure(ids, states, rng)
+    assert isinstance(batch, Batch)
+    assert batch.z.shape == (2, 2) and batch.cov.shape == (2, 2, 2)
+    np.testing.assert_array_equal(batch.sensor, ids)
+    np.testing.assert_array_equal(batch.subject, ids)
+    np.testing.assert_array_equal(batch.cov, gnss.covariance_of(ids))
+    empty = gnss.measure(np.zeros(0, int), np.zeros((0, 4)), rng)
+    assert len(empty) == 0 and empty.dim == 2
+
+
+@pytest.mark.parametrize("vehicle", [0, 1])
+def test_gnss_noise_statistics(rng: np.random.Generator, vehicle: int) -> None:
+    gnss = paper_gnss()
+    n = 20000
+    states = rng.standard_normal((n, 4)) * 50
+    batch = gnss.measure(np.full(n, vehicle), states, rng)
+    assert_covariance_close(batch.z - states[:, :2], gnss.covariances[vehicle])
+
+
+def test_gnss_position_and_velocity(rng: np.random.Generator) -> None:
+    # Brambilla 2020 eq. (3): GNSS gives position and velocity
+    gnss = GnssPosition(default_cov=np.diag([4.0, 4.0, 0.1, 0.1]), state_indices=(0, 1, 2, 3))
+    states = rng.standard_normal((20000, 4))
+    batch = gnss.measure(np.arange(20000), states, rng)
+    assert batch.dim == 4
+    assert_covariance_close(batch.z - states, np.diag([4.0, 4.0, 0.1, 0.1]))
+
+
+def test_gnss_log_likelihood_equals_scipy(rng: np.random.Generator) -> None:
+    gnss = paper_gnss()
+    ids = np.array([0, 1, 1])
+    states = rng.standard_normal((3, 4))
+    batch = gnss.measure(ids, states, rng)
+    guess = states + rng.standard_normal((3, 4))
+    got = gnss.log_likelihood(batch, guess)
+    want = [multivariate_normal(guess[i, :2], batch.cov[i]).logpdf(batch.z[i]) for i in range(3)]
+    np.testing.assert_allclose(got, want, rtol=0, atol=LOGPDF_ATOL)
+
+
+# ----------------------------------------------------------------------------
+# V2F relative position
+# ----------------------------------------------------------------------------
+
+
+def scene(rng: np.random.Generator, n: int = 3, K: int = 4):
+    vehicle_ids = np.array([5, 2, 9, 4, 7][:n])
+    feature_ids = 1000 + np.arange(K)
+    vehicles = 20 * rng.standard_normal((n, 4))
+    features = 20 * rng.standard_normal((K, 4))
+    v2f = RelativePosition({5: 0.5 * np.eye(2), 2: np.diag([2.0, 0.3])}, default_cov=np.eye(2))
+    return v2f, vehicle_ids, vehicles, feature_ids, features
+
+
+def assert_grouped(sensor: np.ndarray) -> None:
+    """Rows of each sensing vehicle are contiguous."""
+    changes = np.count_nonzero(np.diff(sensor)) if sensor.size else 0
+    assert changes == max(np.unique(sensor).size - 1, 0), f"rows not grouped: {sensor}"
+
+
+def test_v2f_shapes_association_and_grouping(rng: np.random.Generator) -> None:
+    v2f, vids, vehicles, fids, features = scene(rng)
+    batch, origin = v2f.measure(vids, vehicles, fids, features, rng)
+    assert batch.z.shape == (12, 2) and batch.cov.shape == (12, 2, 2) and origin.shape == (12,)
+    np.testing.assert_array_equal(batch.subject, -1)  # association unknown to the receiver
+    assert_grouped(batch.sensor)
+    for s in vids:  # P_D = 1: every vehicle sees every feature exactly once
+        assert sorted(origin[batch.sensor == s].tolist()) == fids.tolist()
+    # per-vehicle noise covariance on every row
+    np.testing.assert_array_equal(batch.cov, v2f.covariance_of(batch.sensor))
+
+
+def test_v2f_rows_match_their_origin(rng: np.random.Generator) -> None:
+    # z = H f − H x_s + w with w ~ N(0, W_s): whitened residuals are standard normal
+    v2f, vids, vehicles, fids, features = scene(rng, n=3, K=5)
+    white = []
+    for _ in range(1500):
+        batch, origin = v2f.measure(vids, vehicles, fids, features, rng)
+        f = features[np.searchsorted(fids, origin), :2]
+        x = vehicles[[int(np.flatnonzero(vids == s)[0]) for s in batch.sensor], :2]
+        residual = batch.z - (f - x)
+        L = np.linalg.cholesky(batch.cov)
+        white.append(np.linalg.solve(L, residual[..., None])[..., 0])
+    assert_covariance_close(np.concatenate(white), np.eye(2))
+
+
+def test_v2f_shuffles_rows_within_each_vehicle(rng: np.random.Generator) -> None:
+    v2f, vids, vehicles, fids, features = scene(rng, n=2, K=3)
+    n_draws = 600
+    seen = {s: [] for s in vids.tolist()}
+    for _ in range(n_draws):
+        batch, origin = v2f.measure(vids, vehicles, fids, features, rng)
+        assert_grouped(batch.sensor)
+        for s in seen:
+            seen[s].append(tuple(origin[batch.sensor == s].tolist()))
+    for orders in seen.values():
+        # every one of the 3! orders occurs; P(one missing) ≤ 6 (5/6)^600 ≈ 1e-46
+        assert set(orders) == set(permutations(fids.tolist()))
+        # the first row is uniform over features: binomial(600, 1/3) within 6 sigma
+        first = np.array([o[0] for o in orders])
+        counts = np.array([(first == f).sum() for f in fids])
+        sd = np.sqrt(n_draws * (1 / 3) * (2 / 3))
+        assert (np.abs(counts - n_draws / 3) < N_SIGMA * sd).all(), counts
+
+
+def test_v2f_without_shuffle_keeps_order(rng: np.random.Generator) -> None:
+    v2f, vids, vehicles, fids, features = scene(rng, n=3, K=4)
+    batch, origin = v2f.measure(vids, vehicles, fids, features, rng, shuffle=False)
+    np.testing.assert_array_equal(batch.sensor, np.repeat(vids, 4))
+    np.testing.assert_array_equal(origin, np.tile(fids, 3))
+
+
+def test_v2f_detection_probability(rng: np.random.Generator) -> None:
+    v2f, vids, vehicles, fids, features = scene(rng, n=2, K=5)
+    p_d, n_draws = 0.7, 2000
+    total = 0
+    for _ in range(n_draws):
+        batch, origin = v2f.measure(vids, vehicles, fids, features, rng,
+                                    detection_probability=p_d)
+        for s in vids:  # at most one detection per (vehicle, feature) pair
+            o = origin[batch.sensor == s]
+            assert np.unique(o).size == o.size
+        total += len(batch)
+    trials = n_draws * vids.size * fids.size
+    sd = np.sqrt(trials * p_d * (1 - p_d))
+    assert abs(total - p_d * trials) < N_SIGMA * sd, (total, p_d * trials)
+
+
+def test_v2f_clutter_counts_and_region(rng: np.random.Generator) -> None:
+    v2f, vids, vehicles, fids, features = scene(rng, n=3, K=2)
+    rate, n_draws = 2.0, 2000
+    region = np.array([[-30.0, 30.0], [-10.0, 50.0]])
+    clutter_z, clutter_count = [], np.zeros(3)
+    for _ in range(n_draws):
+        batch, origin = v2f.measure(vids, vehicles, fids, features, rng,
+                                    clutter_rate=rate, clutter_region=region)
+        assert_grouped(batch.sensor)
+        clutter = origin == -1
+        assert (origin[~clutter] >= 1000).all()
+        assert (~clutter).sum() == vids.size * fids.size  # P_D = 1: all detections kept
+        clutter_z.append(batch.z[clutter])
+        clutter_count += [np.count_nonzero(clutter & (batch.sensor == s)) for s in vids]
+        # a clutter row carries the noise covariance of the vehicle that reported it
+        np.testing.assert_array_equal(batch.cov[clutter], v2f.covariance_of(batch.sensor[clutter]))
+    # Poisson(rate) per vehicle and draw: the totals within 6 sigma
+    mean = rate * n_draws
+    assert (np.abs(clutter_count - mean) < N_SIGMA * np.sqrt(mean)).all(), clutter_count
+    z = np.concatenate(clutter_z)
+    assert ((z >= region[:, 0]) & (z <= region[:, 1])).all()
+    width = region[:, 1] - region[:, 0]
+    # uniform over the box: mean at its centre (sd width/√(12 N)), variance width²/12
+    # (relative sd √((1/80 − 1/144) · 144 / N) ≈ √(0.8/N))
+    mean_sd = width / np.sqrt(12 * len(z))
+    assert (np.abs(z.mean(0) - region.mean(1)) < N_SIGMA * mean_sd).all()
+    np.testing.assert_allclose(z.var(0), width**2 / 12, rtol=N_SIGMA * np.sqrt(0.8 / len(z)))
+
+
+def test_v2f_visibility_mask(rng: np.random.Generator) -> None:
+    v2f, vids, vehicles, fids, features = scene(rng, n=3, K=4)
+    visible = rng.random((3, 4)) < 0.5
+    batch, origin = v2f.measure(vids, vehicles, fids, features, rng, visible=visible)
+    got = {(int(s), int(f)) for s, f in zip(batch.sensor, origin, strict=True)}
+    want = {(int(vids[i]), int(fids[j])) for i, j in zip(*np.nonzero(visible), strict=True)}
+    assert got == want
+
+
+def test_v2f_empty_inputs(rng: np.random.Generator) -> None:
+    v2f, vids, vehicles, fids, features = scene(rng)
+    batch, origin = v2f.measure(np.zeros(0, int), np.zeros((0, 4)), fids, features, rng,
+                                clutter_rate=1.0, clutter_region=np.array([[0, 1], [0, 1.0]]))
+    assert len(batch) == 0 and origin.size == 0 and batch.dim == 2
+    batch, origin = v2f.measure(vids, vehicles, np.zeros(0, int), np.zeros((0, 4)), rng)
+    assert len(batch) == 0 and origin.size == 0
+
+
+def test_v2f_bad_arguments(rng: np.random.Generator) -> None:
+    v2f, vids, vehicles, fids, features = scene(rng)
+    with pytest.raises(InvalidInputError, match="detection_probability"):
+        v2f.measure(vids, vehicles, fids, features, rng, detection_probability=0.0)
+    with pytest.raises(InvalidInputError, match="clutter_rate"):
+        v2f.measure(vids, vehicles, fids, features, rng, clutter_rate=-1.0)
+    with pytest.raises(InvalidInputError, match="clutter_region"):
+        v2f.measure(vids, vehicles, fids, features, rng, clutter_rate=1.0)
+    with pytest.raises(InvalidInputError, match="visible"):
+        v2f.measure(vids, vehicles, fids, features, rng, visible=np.ones((2, 2), bool))
+
+
+def test_v2f_log_likelihood_equals_scipy(rng: np.random.Generator) -> None:
+    v2f, vids, vehicles, fids, features = scene(rng)
+    batch, origin = v2f.measure(vids, vehicles, fids, features, rng)
+    f = features[np.searchsorted(fids, origin)] + rng.standard_normal((len(batch), 4))
+    x = vehicles[[int(np.flatnonzero(vids == s)[0]) for s in batch.sensor]]
+    got = v2f.log_likelihood(batch.z, batch.cov, f, x)
+    want = [multivariate_normal(f[i, :2] - x[i, :2], batch.cov[i]).logpdf(batch.z[i])
+            for i in range(len(batch))]
+    np.testing.assert_allclose(got, want, rtol=0, atol=LOGPDF_ATOL)
+
+
+# ----------------------------------------------------------------------------
+# serialisation
+# ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("sensor", [
+    GnssPosition({0: 0.01 * np.eye(2), 1: 15.0 * np.eye(2)}),
+    GnssPosition(default_cov=np.diag([4.0, 4.0, 0.1, 0.1]), state_indices=(0, 1, 2, 3)),
+    RelativePosition({3: np.diag([2.0, 0.5])}, default_cov=np.eye(2)),
+], ids=["gnss", "gnss-pos-vel", "v2f"])
+def test_sensor_from_dict_round_trip(sensor, rng: np.random.Generator) -> None:
+    data = json.loads(json.dumps(sensor.to_dict()))  # must survive JSON (setup.json)
+    again = sensor_from_dict(data)
+    assert type(again) is type(sensor)
+    assert again.state_indices == sensor.state_indices
+    assert again.covariances.keys() == sensor.covariances.keys()
+    for key, cov in sensor.covariances.items():
+        np.testing.assert_array_equal(again.covariances[key], cov)
+    if sensor.default_cov is None:
+        assert again.default_cov is None
+    else:
+        np.testing.assert_array_equal(again.default_cov, sensor.default_cov)
+    assert again.to_dict() == sensor.to_dict()
+
+
+def test_sensor_from_dict_unknown_model() -> None:
+    with pytest.raises(InvalidInputError, match="unknown"):
+        sensor_from_dict({"model": "lidar"})
