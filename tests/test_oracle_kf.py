@@ -166,7 +166,7 @@ def test_vehicle_entering_late_starts_from_its_predicted_prior(seed: int) -> Non
 
 @pytest.mark.slow
 def test_far_better_than_gnss_for_the_poor_vehicle(seed: int) -> None:
-    runs = 10
+    runs = 20
     sq = {"gnss-kf": [], "oracle-kf": []}
     for r in range(runs):
         rec = froehle_recording([seed, 43, r], n_steps=501)  # the paper's setting
@@ -177,10 +177,10 @@ def test_far_better_than_gnss_for_the_poor_vehicle(seed: int) -> None:
     # vehicle 1 (σ² = 15 m²) borrows vehicle 0's accuracy through the features: about
     # 0.7 m against 2.53 m (ratio ≈ 0.28, single runs ≤ 0.32); 0.5 leaves a wide margin.
     assert ratio[1] < 0.5, rmse
-    # vehicle 0 (σ² = 0.01 m²) gains almost nothing (ratio ≈ 0.993 over 10 runs, spread
-    # ≈ 0.001): within 2 %, and never worse than gnss-kf beyond Monte Carlo noise
-    # (the oracle is the MMSE estimator; both see the same data).
-    np.testing.assert_allclose(ratio[0], 1.0, atol=0.02)
+    # vehicle 0 (σ² = 0.01 m²) gains almost nothing: the issue's "equal within 1 %". The
+    # ratio is ≈ 0.993 with a spread ≈ 0.0007 over 20 runs, so 1 % is > 4σ away; and the
+    # oracle is never worse beyond Monte Carlo noise (MMSE estimator on the same data).
+    np.testing.assert_allclose(ratio[0], 1.0, atol=0.01)
     assert ratio[0] < 1.005, rmse
 
 
