@@ -89,13 +89,9 @@ class GnssKF:
         if rows.size == 0:
             return beliefs
         target = pos[rows]
-        if np.unique(target).size == target.size:  # usual case: at most one fix each
-            updated = kf_update(beliefs.take(target), gnss.z[rows], self._H, gnss.cov[rows])
-            if target.size == ids.size and np.array_equal(target, np.arange(ids.size)):
-                return updated
-            mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
-            mean[target], cov[target] = updated.mean, updated.cov
-            return Gaussians(mean, cov)
+        if target.size == ids.size and np.array_equal(target, np.arange(ids.size)):
+            # usual step: one fix per vehicle, in order — one batched update, no copies
+            return kf_update(beliefs, gnss.z[rows], self._H, gnss.cov[rows])
         # A vehicle with several fixes in one step is updated once per fix, in rounds
         # of distinct vehicles so that each round is one batched update.
         order = np.argsort(target, kind="stable")
