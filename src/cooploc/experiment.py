@@ -21,13 +21,12 @@ import dataclasses
 import json
 import os
 import time
-import tracemalloc
 import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
@@ -57,7 +56,6 @@ __all__ = [
     "write_results",
 ]
 
-Backend = Literal["serial", "processes", "dask"]
 BACKENDS: tuple[str, ...] = ("serial", "processes", "dask")
 
 
@@ -356,9 +354,8 @@ def run_sweep(
     configs = []
     for value in values:
         if target == "scenario":
-            cfg = dataclasses.replace(config, scenario_params=dataclasses.replace(
-                config.scenario_params, **{key: value}) if key in config.scenario_params.keys()
-                else config.scenario_params.with_overrides({key: value}))
+            cfg = dataclasses.replace(
+                config, scenario_params=config.scenario_params.with_overrides({key: value}))
         else:
             specs = []
             for spec in config.estimators:
@@ -478,13 +475,3 @@ def write_results(result: ExperimentResult, out: str | os.PathLike[str]) -> Path
     (folder / "report.md").write_text(plots.run_report(summary, figures))
     return folder
 
-
-def measure_peak_memory(fn: Callable[[], Any]) -> tuple[Any, int]:
-    """Run `fn` and return (its result, peak traced memory in bytes)."""
-    tracemalloc.start()
-    try:
-        value = fn()
-        _, peak = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
-    return value, peak

@@ -23,7 +23,15 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from cooploc.types import Estimate, FloatArray, IntArray, Recording, StateLayout, StateSet
+from cooploc.types import (
+    Estimate,
+    FloatArray,
+    IntArray,
+    Recording,
+    StateLayout,
+    StateSet,
+    lookup_ids,
+)
 
 __all__ = [
     "FEATURE",
@@ -114,29 +122,18 @@ class ErrorTable:
                      for f in cls.__dataclass_fields__))
 
 
-def _entity_errors(est: StateSet, true: FloatArray, layout: StateLayout
+def _entity_errors(mean: FloatArray, true: FloatArray, layout: StateLayout
                    ) -> tuple[FloatArray, FloatArray, FloatArray]:
     pos = list(layout.position)
-    err_pos = np.linalg.norm(est.mean[:, pos] - true[:, pos], axis=1)
+    err_pos = np.linalg.norm(mean[:, pos] - true[:, pos], axis=1)
     err_vel = np.full(err_pos.shape, np.nan)
     if layout.velocity is not None:
         vel = list(layout.velocity)
-        err_vel = np.linalg.norm(est.mean[:, vel] - true[:, vel], axis=1)
+        err_vel = np.linalg.norm(mean[:, vel] - true[:, vel], axis=1)
     err_heading = np.full(err_pos.shape, np.nan)
     if layout.heading is not None:
-        err_heading = np.abs(wrap_angle(est.mean[:, layout.heading] - true[:, layout.heading]))
+        err_heading = np.abs(wrap_angle(mean[:, layout.heading] - true[:, layout.heading]))
     return err_pos, err_vel, err_heading
-
-
-def _scored(est: StateSet, truth_ids: IntArray, present: np.ndarray) -> tuple[np.ndarray, IntArray]:
-    """Rows of `est` that are present in truth, and their column in the truth arrays."""
-    order = np.argsort(truth_ids)
-    pos = np.searchsorted(truth_ids, est.ids, sorter=order)
-    pos = np.minimum(pos, max(truth_ids.size - 1, 0))
-    col = order[pos] if truth_ids.size else np.zeros(est.ids.size, dtype=np.int64)
-    ok = (truth_ids[col] == est.ids) if truth_ids.size else np.zeros(est.ids.size, bool)
-    ok &= present[col] if truth_ids.size else ok
-    return ok, col
 
 
 def evaluate(recording: Recording, estimates: Sequence[Estimate]) -> ErrorTable:
@@ -153,13 +150,13 @@ def evaluate(recording: Recording, estimates: Sequence[Estimate]) -> ErrorTable:
         for kind, est, ids, states, present, layout in parts:
             if len(est) == 0:
                 continue
-            ok, col = _scored(est, ids, present)
+            col, ok = lookup_ids(ids, est.ids)
+            ok &= present[col]  # scored: estimated, known to the truth and present
             if not ok.any():
                 continue
-            chosen = StateSet(est.ids[ok], est.mean[ok], est.cov[ok]) if not ok.all() else est
-            e_pos, e_vel, e_head = _entity_errors(chosen, states[col[ok]], layout)
+            e_pos, e_vel, e_head = _entity_errors(est.mean[ok], states[col[ok]], layout)
             n = e_pos.size
-            columns.append((np.full(n, k), np.full(n, t), np.full(n, kind), chosen.ids,
+            columns.append((np.full(n, k), np.full(n, t), np.full(n, kind), est.ids[ok],
                             e_pos, e_vel, e_head))
     if not columns:
         return ErrorTable.concatenate([])

@@ -25,7 +25,14 @@ from cooploc.metrics import VEHICLE, ecdf
 if TYPE_CHECKING:
     from cooploc.experiment import ExperimentResult
 
-__all__ = ["per_run_rmse_cdf", "rmse_over_time", "run_figures", "run_report", "sweep_plot"]
+__all__ = [
+    "format_number",
+    "per_run_rmse_cdf",
+    "rmse_over_time",
+    "run_figures",
+    "run_report",
+    "sweep_plot",
+]
 
 MAX_PANELS = 6  # more vehicles than this: the first ones are drawn, the pooled RMSE is in the report
 BOUND_ESTIMATORS = ("oracle-kf",)
@@ -125,7 +132,8 @@ def run_figures(result: ExperimentResult, summary: Mapping[str, Any], folder: Pa
     return figures
 
 
-def _fmt(value: float | None, digits: int = 3) -> str:
+def format_number(value: float | None, digits: int = 3) -> str:
+    """`digits` significant digits, or an en dash where there is no value."""
     return "–" if value is None else f"{value:.{digits}g}"
 
 
@@ -147,10 +155,10 @@ def run_report(summary: Mapping[str, Any], figures: Sequence[tuple[str, str]]) -
     ]
     for name, e in est.items():
         mark = " †" if name in BOUND_ESTIMATORS else ""
-        cells = [_fmt(e["vehicle_rmse"].get(v)) for v in shown]
+        cells = [format_number(e["vehicle_rmse"].get(v)) for v in shown]
         lines.append(f"| {name}{mark} | " + " | ".join(cells)
-                     + f" | {_fmt(e['vehicle_rmse_all'])} | {_fmt(e['feature_rmse_all'])}"
-                     f" | {_fmt(e['steps_per_second'], 4)} |")
+                     + f" | {format_number(e['vehicle_rmse_all'])} | {format_number(e['feature_rmse_all'])}"
+                     f" | {format_number(e['steps_per_second'], 4)} |")
     lines.append("")
     for caption, name in figures:
         lines += [f"![{caption}]({name})", ""]

@@ -139,21 +139,26 @@ def check_covariances(name: str, cov: FloatArray) -> None:
         ) from None
 
 
-def index_of(ids: IntArray, wanted: IntArray, name: str = "ids") -> IntArray:
-    """Positions of `wanted` ids inside `ids` (vectorised lookup); raise if any is missing."""
+def lookup_ids(ids: IntArray, wanted: npt.ArrayLike) -> tuple[IntArray, npt.NDArray[np.bool_]]:
+    """Vectorised lookup of `wanted` ids in unsorted `ids`: (position, found) per wanted id.
+
+    Where an id is not found its position is 0 and meaningless.
+    """
     wanted = np.asarray(wanted, dtype=np.int64)
     if ids.size == 0:
-        if wanted.size:
-            raise InvalidInputError(f"{name}: unknown ids {wanted.tolist()}")
-        return np.zeros(0, dtype=np.int64)
+        return np.zeros(wanted.shape, dtype=np.int64), np.zeros(wanted.shape, dtype=bool)
     order = np.argsort(ids, kind="stable")
-    pos = np.searchsorted(ids, wanted, sorter=order)
-    pos = np.minimum(pos, ids.size - 1)
-    found = order[pos]
-    missing = ids[found] != wanted
-    if missing.any():
-        raise InvalidInputError(f"{name}: unknown ids {wanted[missing].tolist()}")
-    return found
+    pos = order[np.minimum(np.searchsorted(ids, wanted, sorter=order), ids.size - 1)]
+    return pos, ids[pos] == wanted
+
+
+def index_of(ids: IntArray, wanted: npt.ArrayLike, name: str = "ids") -> IntArray:
+    """Positions of `wanted` ids inside `ids`; raise if any is missing."""
+    pos, found = lookup_ids(ids, wanted)
+    if not found.all():
+        missing = np.asarray(wanted, dtype=np.int64)[~found]
+        raise InvalidInputError(f"{name}: unknown ids {missing.tolist()}")
+    return pos
 
 
 # ----------------------------------------------------------------------------

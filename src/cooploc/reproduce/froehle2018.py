@@ -21,7 +21,7 @@ import numpy as np
 
 from cooploc.estimators import estimators
 from cooploc.experiment import ExperimentConfig, run_experiment, run_sweep, summarize
-from cooploc.plots import per_run_rmse_cdf, sweep_plot
+from cooploc.plots import format_number, per_run_rmse_cdf, sweep_plot
 from cooploc.reproduce import PaperExperiment, ReproduceOptions
 from cooploc.scenarios.froehle2018 import FroehleParams
 
@@ -57,10 +57,6 @@ def _curves(sweep: list[tuple[Any, Any]]) -> dict[str, dict[str, list[float]]]:
             for vid, value in est["vehicle_rmse"].items():
                 curves.setdefault(name, {}).setdefault(vid, []).append(value)
     return curves
-
-
-def _fmt(x: float | None) -> str:
-    return "–" if x is None else f"{x:.3g}"
 
 
 def run(options: ReproduceOptions) -> Path:
@@ -142,17 +138,17 @@ def _report(data: dict[str, Any], quick: bool) -> str:
         "| statement of the paper | paper | ours |",
         "|---|---|---|",
         f"| GNSS-only Kalman filter RMSE, vehicle 2 (§V-B) | {PAPER_GNSS_RMSE_VEHICLE2} m | "
-        f"{_fmt(gnss.get('1'))} m simulated; {analytic.get('1', float('nan')):.2f} m analytic "
+        f"{format_number(gnss.get('1'))} m simulated; {analytic.get('1', float('nan')):.2f} m analytic "
         "steady state (DARE) |",
         f"| GNSS-only Kalman filter RMSE, vehicle 1 | low (σ² = 0.01 m²) | "
-        f"{_fmt(gnss.get('0'))} m; {analytic.get('0', float('nan')):.2f} m analytic |",
+        f"{format_number(gnss.get('0'))} m; {analytic.get('0', float('nan')):.2f} m analytic |",
         f"| Fig. 4: vehicle 1 RMSE almost constant in σ²_V2F | flat | bound: {span(oracle4.get('0'))}"
         " over σ²_V2F = 0.1 … 10 m² |",
         f"| Fig. 4: vehicle 2 RMSE grows with σ²_V2F, flattening beyond ≈ 3 m² | grows | bound: "
         f"{ends(oracle4.get('1'))} from 0.1 to 10 m² |",
         f"| Fig. 5: K = 0 is the GNSS-only filter | equal | bound at K = 0: "
-        f"{_fmt((oracle5.get('1') or [None])[0])} m vs gnss-kf "
-        f"{_fmt((c5.get('gnss-kf', {}).get('1') or [None])[0])} m (vehicle 2) |",
+        f"{format_number((oracle5.get('1') or [None])[0])} m vs gnss-kf "
+        f"{format_number((c5.get('gnss-kf', {}).get('1') or [None])[0])} m (vehicle 2) |",
         f"| Fig. 5: vehicle 2 RMSE decreases with K | decreases | bound: {ends(oracle5.get('1'))}"
         " from K = 0 to 6 |",
         f"| Fig. 5: vehicle 1 RMSE almost constant in K | flat | bound: {span(oracle5.get('0'))} |",
