@@ -16,10 +16,15 @@ from scipy.stats import multivariate_normal
 
 from cooploc.errors import InvalidInputError
 from cooploc.sensors import (
+    AnonymousPosition,
     GnssPosition,
+    InfrastructureRadar,
+    Odometry,
     RelativePosition,
+    rotation,
     selection_matrix,
     sensor_from_dict,
+    to_local,
 )
 from cooploc.types import Batch
 from helpers import assert_covariance_close
@@ -263,6 +268,107 @@ def test_v2f_log_likelihood_equals_scipy(rng: np.random.Generator) -> None:
 
 
 # ----------------------------------------------------------------------------
+# anonymous GNSS, infrastructure radar, odometry
+# ----------------------------------------------------------------------------
+
+# Noise-free simulations are compared with closed forms up to float rounding.
+EXACT_ATOL = 1e-12
+
+
+def _tiny_cov(dim: int = 2) -> np.ndarray:
+    return 1e-30 * np.eye(dim)
+
+
+def test_anonymous_rows_hide_identity_and_keep_origin(rng: np.random.Generator) -> None:
+    sensor = AnonymousPosition(default_cov=_tiny_cov())
+    ids = np.array([4, 9, 2, 7])
+    states = rng.normal(size=(4, 4)) * 50
+    batch, origin = sensor.measure(ids, states, rng)
+    assert (batch.sensor == -1).all() and (batch.subject == -1).all()
+    assert sorted(origin.tolist()) == sorted(ids.tolist())
+    rows = {int(i): s for i, s in zip(ids, states, strict=True)}
+    for z, entity in zip(batch.z, origin, strict=True):
+        np.testing.assert_allclose(z, rows[int(entity)][:2], atol=EXACT_ATOL)
+
+
+def test_anonymous_rows_are_shuffled(rng: np.random.Generator) -> None:
+    sensor = AnonymousPosition(default_cov=np.eye(2))
+    ids = np.arange(6)
+    orders = {tuple(sensor.measure(ids, np.zeros((6, 4)), rng)[1]) for _ in range(50)}
+    assert len(orders) > 1
+
+
+def test_anonymous_detection_and_clutter(rng: np.random.Generator) -> None:
+    sensor = AnonymousPosition(default_cov=np.eye(2))
+    region = np.array([[-10.0, 10.0], [0.0, 5.0]])
+    n_trials, n_ids, p_d, lam = 400, 5, 0.7, 2.0
+    detected, clutter = 0, 0
+    for _ in range(n_trials):
+        batch, origin = sensor.measure(np.arange(n_ids), np.zeros((n_ids, 4)), rng,
+                                       detection_probability=p_d, clutter_rate=lam, clutter_region=region)
+        detected += int((origin >= 0).sum())
+        clutter += int((origin < 0).sum())
+        z_clutter = batch.z[origin < 0]
+        assert ((z_clutter >= region[:, 0]) & (z_clutter <= region[:, 1])).all()
+    n = n_trials * n_ids
+    assert abs(detected - n * p_d) < N_SIGMA * np.sqrt(n * p_d * (1 - p_d))
+    assert abs(clutter - n_trials * lam) < N_SIGMA * np.sqrt(n_trials * lam)
+
+
+def test_anonymous_empty(rng: np.random.Generator) -> None:
+    batch, origin = AnonymousPosition(default_cov=np.eye(2)).measure(np.zeros(0, int), np.zeros((0, 4)), rng)
+    assert len(batch) == 0 and origin.shape == (0,)
+
+
+def test_rotation_and_to_local() -> None:
+    np.testing.assert_allclose(rotation(np.pi / 2) @ [1.0, 0.0], [0.0, 1.0], atol=EXACT_ATOL)
+    pose = np.array([10.0, -5.0, np.pi / 2])
+    # a point 1 m north of the radar lies on the radar's +x axis when it faces north
+    np.testing.assert_allclose(to_local(pose, [[10.0, -4.0]]), [[1.0, 0.0]], atol=EXACT_ATOL)
+    assert rotation(np.zeros(3)).shape == (3, 2, 2)
+
+
+def test_radar_is_a_rigid_transform_of_the_truth(rng: np.random.Generator) -> None:
+    radar = InfrastructureRadar(default_cov=_tiny_cov())
+    pose = np.array([30.0, 40.0, 2.1])
+    ids = np.arange(5)
+    states = rng.normal(size=(5, 4)) * 30
+    batch, origin = radar.measure(3, pose, ids, states, rng)
+    assert (batch.sensor == 3).all() and (batch.subject == -1).all()
+    back = batch.z @ rotation(pose[2]).T + pose[:2]  # local → global
+    np.testing.assert_allclose(back, states[origin, :2], atol=1e-9)
+    # the topology (pairwise distances) is the same in both frames (Zhang Fig. 1)
+    d_local = np.linalg.norm(batch.z[:, None] - batch.z[None], axis=-1)
+    d_global = np.linalg.norm(states[origin, None, :2] - states[None, origin, :2], axis=-1)
+    np.testing.assert_allclose(d_local, d_global, atol=1e-9)
+
+
+def test_radar_range_and_noise(rng: np.random.Generator) -> None:
+    radar = InfrastructureRadar({1: np.diag([0.1, 0.4])}, max_range=100.0)
+    states = np.array([[50.0, 0, 0, 0], [150.0, 0, 0, 0]])
+    _, origin = radar.measure(1, [0.0, 0.0, 0.0], [0, 1], states, rng)
+    assert origin.tolist() == [0]
+    draws = np.concatenate([radar.measure(1, [0.0, 0.0, 0.0], [0], states[:1], rng)[0].z
+                            for _ in range(4000)])
+    var = draws.var(axis=0)
+    np.testing.assert_allclose(var, [0.1, 0.4], rtol=N_SIGMA * np.sqrt(2 / 4000))
+
+
+def test_radar_rejects_bad_range() -> None:
+    with pytest.raises(InvalidInputError, match="max_range"):
+        InfrastructureRadar(default_cov=np.eye(2), max_range=0.0)
+
+
+def test_odometry_is_the_displacement(rng: np.random.Generator) -> None:
+    odo = Odometry(default_cov=_tiny_cov())
+    now, before = rng.normal(size=(3, 4)), rng.normal(size=(3, 4))
+    batch = odo.measure([5, 6, 8], now, before, rng)
+    assert batch.sensor.tolist() == [5, 6, 8] and batch.subject.tolist() == [5, 6, 8]
+    np.testing.assert_allclose(batch.z, now[:, :2] - before[:, :2], atol=EXACT_ATOL)
+    assert len(odo.measure([], np.zeros((0, 4)), np.zeros((0, 4)), rng)) == 0
+
+
+# ----------------------------------------------------------------------------
 # serialisation
 # ----------------------------------------------------------------------------
 
@@ -271,7 +377,10 @@ def test_v2f_log_likelihood_equals_scipy(rng: np.random.Generator) -> None:
     GnssPosition({0: 0.01 * np.eye(2), 1: 15.0 * np.eye(2)}),
     GnssPosition(default_cov=np.diag([4.0, 4.0, 0.1, 0.1]), state_indices=(0, 1, 2, 3)),
     RelativePosition({3: np.diag([2.0, 0.5])}, default_cov=np.eye(2)),
-], ids=["gnss", "gnss-pos-vel", "v2f"])
+    AnonymousPosition(default_cov=0.5 * np.eye(2), state_indices=(0, 2)),
+    InfrastructureRadar({7: 0.1 * np.eye(2)}, max_range=150.0),
+    Odometry(default_cov=np.eye(2)),
+], ids=["gnss", "gnss-pos-vel", "v2f", "anonymous", "radar", "odometry"])
 def test_sensor_from_dict_round_trip(sensor, rng: np.random.Generator) -> None:
     data = json.loads(json.dumps(sensor.to_dict()))  # must survive JSON (setup.json)
     again = sensor_from_dict(data)

@@ -11,6 +11,17 @@
   returned separately as the row's origin (truth). Optional missed detections
   (probability 1 − P_D) and Poisson clutter (rate λ per vehicle and step, uniform over
   a box in measurement space, origin −1).
+- `AnonymousPosition` — absolute position rows that reach the fusion centre without
+  the identity of the vehicle they came from (Zhang 2016 §3.2, "internal sensor"):
+  z = H x + w as `GnssPosition`, but `sensor` = `subject` = −1 and rows shuffled; the
+  true vehicle id is returned as the row's origin. Optional P_D and clutter.
+- `InfrastructureRadar` — a road-side sensor with pose (t, θ) (position t ∈ R², yaw θ)
+  that reports every vehicle in range in its own frame, anonymously (Zhang 2016 §3.2,
+  Gulati §II): z = R(θ)ᵀ (H x − t) + w, w ~ N(0, W_radar). The pose is random per
+  run and unknown to the estimators (it is kept in `Truth.sensor_poses`).
+- `Odometry` — displacement of each vehicle since the previous step, in the global
+  frame (Gulati eq. 4 for the constant-velocity model): z_k = H x_k − H x_{k−1} + w,
+  w ~ N(0, W_s). A vehicle that enters at step k has no odometry row at k.
 
 Every simulator is vectorised over entities (and vehicle × feature pairs) and takes
 the random generator as an argument.
@@ -31,11 +42,16 @@ from cooploc.motion import sample_gaussian
 from cooploc.types import Batch, FloatArray, IntArray, check_covariances, float_array
 
 __all__ = [
+    "AnonymousPosition",
     "GnssPosition",
+    "InfrastructureRadar",
+    "Odometry",
     "RelativePosition",
     "SensorModel",
+    "rotation",
     "selection_matrix",
     "sensor_from_dict",
+    "to_local",
 ]
 
 
@@ -217,7 +233,165 @@ class RelativePosition(_PerEntityCovariance):
         return gaussian_logpdf(z - (feature @ Hf.T - vehicle @ Hx.T), cov)
 
 
-_SENSORS = (GnssPosition, RelativePosition)
+def rotation(yaw: npt.ArrayLike) -> FloatArray:
+    """2-D rotation matrices R(θ) (..., 2, 2) that turn sensor-frame vectors into the global frame."""
+    yaw = np.asarray(yaw, dtype=float)
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def to_local(pose: npt.ArrayLike, points: FloatArray) -> FloatArray:
+    """Points (n, 2) in the global frame seen from a sensor at pose [x, y, yaw]: R(θ)ᵀ (p − t)."""
+    pose = np.asarray(pose, dtype=float)
+    return (np.asarray(points, dtype=float) - pose[:2]) @ rotation(pose[2])
+
+
+def _detect_and_clutter(
+    z: FloatArray,
+    cov: FloatArray,
+    origin: IntArray,
+    rng: np.random.Generator,
+    *,
+    detection_probability: float,
+    clutter_rate: float,
+    clutter_region: FloatArray | None,
+    clutter_cov: FloatArray | None,
+) -> tuple[FloatArray, FloatArray, IntArray]:
+    """Thin rows with P_D, append Poisson(λ) clutter uniform over a box, and shuffle (one sensor)."""
+    if not 0.0 < detection_probability <= 1.0:
+        raise InvalidInputError(f"detection_probability must lie in (0, 1], got {detection_probability!r}")
+    if clutter_rate < 0:
+        raise InvalidInputError(f"clutter_rate must be >= 0, got {clutter_rate!r}")
+    dz = z.shape[1]
+    if detection_probability < 1.0:
+        keep = rng.random(origin.size) < detection_probability
+        z, cov, origin = z[keep], cov[keep], origin[keep]
+    if clutter_rate > 0:
+        if clutter_region is None or clutter_cov is None:
+            raise InvalidInputError("clutter_region and a default_cov are required when clutter_rate > 0")
+        region = float_array("clutter_region", clutter_region, (dz, 2))
+        n_clutter = int(rng.poisson(clutter_rate))
+        low, high = region[:, 0], region[:, 1]
+        z = np.concatenate([z, low + (high - low) * rng.random((n_clutter, dz))])
+        cov = np.concatenate([cov, np.broadcast_to(clutter_cov, (n_clutter, dz, dz))])
+        origin = np.concatenate([origin, np.full(n_clutter, -1, dtype=np.int64)])
+    order = rng.permutation(origin.size)
+    return z[order], cov[order], origin[order]
+
+
+@dataclass(frozen=True)
+class AnonymousPosition(_PerEntityCovariance):
+    """Absolute position rows without vehicle identity (Zhang 2016 §3.2 internal sensor).
+
+    The covariance of a row is its vehicle's covariance (clutter rows use `default_cov`),
+    so the receiver knows how noisy each row is but not whose it is.
+    """
+
+    name: ClassVar[str] = "anonymous-position"
+
+    def measure(
+        self,
+        ids: npt.ArrayLike,
+        states: FloatArray,
+        rng: np.random.Generator,
+        *,
+        detection_probability: float = 1.0,
+        clutter_rate: float = 0.0,
+        clutter_region: FloatArray | None = None,
+    ) -> tuple[Batch, IntArray]:
+        """One row per detected vehicle, shuffled: Batch with sensor = subject = −1, and origin (M,)."""
+        ids = np.asarray(ids, dtype=np.int64)
+        states = np.asarray(states, dtype=float)
+        cov = self.covariance_of(ids)
+        H = self.observation_matrix(states.shape[1])
+        z = states @ H.T + sample_gaussian(cov, rng) if ids.size else np.zeros((0, self.dim))
+        z, cov, origin = _detect_and_clutter(
+            z, cov, ids, rng, detection_probability=detection_probability, clutter_rate=clutter_rate,
+            clutter_region=clutter_region, clutter_cov=self.default_cov,
+        )
+        anonymous = np.full(origin.size, -1, dtype=np.int64)
+        return Batch(z, cov, anonymous, anonymous), origin
+
+    def log_likelihood(self, z: FloatArray, cov: FloatArray, states: FloatArray) -> FloatArray:
+        """log N(z; H x, W), broadcast over leading dimensions of all arguments."""
+        H = self.observation_matrix(states.shape[-1])
+        return gaussian_logpdf(z - states @ H.T, cov)
+
+
+@dataclass(frozen=True)
+class InfrastructureRadar(_PerEntityCovariance):
+    """Road-side radar reporting vehicle positions in its own frame, anonymously (Zhang §3.2, Gulati §II).
+
+    z = R(θ)ᵀ (H x − t) + w with the sensor pose [t_x, t_y, θ] unknown to estimators.
+    Covariances are keyed by the radar's id (or `default_cov`). Only vehicles within
+    `max_range` metres of the radar are reported (``inf``: all).
+    """
+
+    name: ClassVar[str] = "infrastructure-radar"
+    max_range: float = float("inf")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not self.max_range > 0:
+            raise InvalidInputError(f"InfrastructureRadar.max_range must be > 0, got {self.max_range!r}")
+        object.__setattr__(self, "max_range", float(self.max_range))
+
+    def measure(
+        self,
+        sensor_id: int,
+        pose: npt.ArrayLike,
+        ids: npt.ArrayLike,
+        states: FloatArray,
+        rng: np.random.Generator,
+        *,
+        detection_probability: float = 1.0,
+        clutter_rate: float = 0.0,
+        clutter_region: FloatArray | None = None,
+    ) -> tuple[Batch, IntArray]:
+        """Rows of one radar at `pose` [x, y, yaw]: Batch with sensor = sensor_id, subject = −1; origin (M,).
+
+        `clutter_region` (2, 2) is a box in the radar's own frame.
+        """
+        pose = float_array("pose", pose, (3,))
+        ids = np.asarray(ids, dtype=np.int64)
+        states = np.asarray(states, dtype=float)
+        H = self.observation_matrix(states.shape[1])
+        local = to_local(pose, states @ H.T)
+        in_range = np.hypot(local[:, 0], local[:, 1]) <= self.max_range
+        ids, local = ids[in_range], local[in_range]
+        noise_cov = self.covariance_of([sensor_id])[0]
+        cov = np.broadcast_to(noise_cov, (ids.size, self.dim, self.dim)).copy()
+        z = local + sample_gaussian(cov, rng) if ids.size else np.zeros((0, self.dim))
+        z, cov, origin = _detect_and_clutter(
+            z, cov, ids, rng, detection_probability=detection_probability, clutter_rate=clutter_rate,
+            clutter_region=clutter_region, clutter_cov=noise_cov,
+        )
+        return Batch(z, cov, np.full(origin.size, int(sensor_id), dtype=np.int64),
+                     np.full(origin.size, -1, dtype=np.int64)), origin
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**super().to_dict(), "max_range": self.max_range}
+
+
+@dataclass(frozen=True)
+class Odometry(_PerEntityCovariance):
+    """Displacement since the previous step, global frame (Gulati eq. 4): z = H x_k − H x_{k−1} + w."""
+
+    name: ClassVar[str] = "odometry"
+
+    def measure(
+        self, ids: npt.ArrayLike, states: FloatArray, previous: FloatArray, rng: np.random.Generator
+    ) -> Batch:
+        """ids (n,), states (n, dx) at k and previous (n, dx) at k−1 → Batch with sensor = subject = id."""
+        ids = np.asarray(ids, dtype=np.int64)
+        cov = self.covariance_of(ids)
+        H = self.observation_matrix(np.shape(states)[1])
+        delta = (np.asarray(states, dtype=float) - np.asarray(previous, dtype=float)) @ H.T
+        z = delta + sample_gaussian(cov, rng) if ids.size else np.zeros((0, self.dim))
+        return Batch(z, cov, ids, ids)
+
+
+_SENSORS = (GnssPosition, RelativePosition, AnonymousPosition, InfrastructureRadar, Odometry)
 
 
 def sensor_from_dict(data: Mapping[str, Any]) -> SensorModel:
