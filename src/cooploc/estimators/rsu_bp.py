@@ -1,0 +1,451 @@
+"""`rsu-bp`: centralized particle BP with BP data association at the road-side unit.
+
+Paper: M. Fröhle, C. Lindberg, H. Wymeersch, "Cooperative Localization of Vehicles
+without Inter-vehicle Measurements", IEEE WCNC 2018, §III–V. Every vehicle s sends its
+GNSS fix and its anonymous, shuffled V2F detections z_m = H f_k − H x_s + w (eq. (1))
+to the RSU, which runs loopy BP on the factor graph of eq. (9) (Fig. 2), one time step
+after the other (filtering). Per step, on particle beliefs (§IV-B, N_p per state):
+
+1. Prediction (10)–(11): propagate every vehicle and feature particle through the motion
+   model; φ_s, α_k are the predicted sets. χ_s is the GNSS likelihood at the vehicle
+   particles (eq. (8)).
+2. Measurement evaluation (14): β_{k,s}(m) = Σ_j Σ_l α_k,j (φχ)_s,l N(z_m; H f_j − H x_l, W),
+   from the kernel G over all particle pairs (`particles.pair_kernel`), computed once
+   per step and reused for β, γ and μ.
+3.–4. Data association (15)–(20): per vehicle, P iterations of loopy BP over the
+   association variables (`association.bp_association`), with ψ_k(m) = P_D β_{k,s}(m),
+   ψ_k(0) = 1 − P_D and clutter weight κ = λ / |region| (the paper's one-to-one case is
+   P_D = 1, λ = 0). Output: ν_{m→k} = η_{k,s}(m) / η_{k,s}(0).
+5. Measurement correction, I iterations (21)–(24):
+   γ_{k,s}(f_j) = (1 − P_D) + P_D Σ_m ν_{m→k} Σ_l ρ̂_{k,s,l} G[s,k,m][j, l]      (21)
+   α̃_{k,s} = α_k Π_{s'≠s} γ_{k,s'}                                             (22)
+   μ_{k,s}(x_l) = (1 − P_D) + P_D Σ_m ν_{m→k} Σ_j α̂̃_{k,s,j} G[s,k,m][j, l]     (23)
+   ρ_{k,s} = φ_s χ_s Π_{k'≠k} μ_{k',s}                                         (24)
+   with ρ^{(0)} = φχ (eq. (13)) and hats for messages normalised over the particles.
+6. Beliefs (25)–(26): b_k ∝ α_k Π_s γ_{k,s} and b_s ∝ φ_s χ_s Π_k μ_{k,s} as log-weights
+   on the predicted particles; means and covariances for the `Estimate`; systematic
+   resampling when N_eff < `resample_threshold` · N_p (1 = every step, as the paper).
+
+Complexity O(S K M N_p² (1 + I)) kernel work, done as one numba pass that fills G
+(S K M N_p² doubles; with more than `kernel_memory_mb` the kernel is recomputed per
+use instead of stored), plus O(S K M P) for the association.
+
+Choices the paper leaves open (DESIGN note):
+- Vehicle births: the prior of `Setup.vehicle_prior` (or a broad belief at the first
+  fix, `estimators.base.birth_beliefs`), Kalman-updated with the first GNSS fix and
+  sampled — sampling the exact posterior avoids the degeneracy of weighting prior
+  particles (10 m spread) with a 0.1 m GNSS likelihood.
+- Feature initialisation (the paper's footnote 1, "GNSS plus V2F measurement"): the
+  K features of `Setup.feature_prior` stay Gaussian (their predicted prior) until the
+  first step with V2F rows. Then feature k is drawn around row k of the best-localised
+  vehicle (position H x + z + w, x from that vehicle's particles; velocity from the
+  Gaussian prior conditioned on that position); features beyond that vehicle's rows
+  are drawn from all rows at once. The V2F rows of that step are used for this only.
+  The features' priors are identical, so which estimated feature id matches which
+  true feature is arbitrary: feature RMSE and association accuracy by id are only
+  meaningful up to this relabelling.
+- β, γ, μ use normalised messages, so the (1 − P_D) term weighs against a likelihood
+  averaged over a probability distribution; the paper's P_D = 1 case has (1 − P_D) = 0.
+- A message that vanishes at every particle (e.g. all kernel values underflow) is
+  replaced by a constant (no information) rather than producing NaN.
+- V2F rows of sensors that are not present, GNSS rows of unknown vehicles, and
+  anonymous GNSS rows are ignored.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from cooploc.association import association_weights, bp_association, decide, padded_groups
+from cooploc.errors import ConfigError
+from cooploc.estimators.base import birth_beliefs, predict_steps
+from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
+from cooploc.params import Params, require
+from cooploc.particles import (
+    Particles,
+    effective_sample_size,
+    normalize_log_weights,
+    pair_kernel,
+    pair_kernel_sum,
+    propagate_linear,
+    resample,
+    sample_gaussians,
+    systematic_resample,
+    weighted_moments,
+)
+from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet, lookup_ids
+
+__all__ = ["RsuBP", "RsuBPParams"]
+
+#: ESS below this share of N_p is reported as degenerate in `Estimate.info`.
+DEGENERACY_SHARE = 0.1
+
+
+@dataclass(frozen=True)
+class RsuBPParams(Params):
+    """Parameters of `rsu-bp` (defaults: Fröhle 2018 §V-A).
+
+    Attributes
+    ----------
+    n_particles : N_p, particles per vehicle and per feature (paper: 600).
+    n_da_iterations : P, loopy-BP iterations of the data association (paper: 5).
+    n_correction_iterations : I, measurement-correction iterations (paper: 1).
+    resample_threshold : resample a belief when N_eff < threshold · N_p (1: every step).
+    association_threshold : a V2F row is attributed to its MAP feature only if that
+        feature's marginal probability is at least this (else -1) in `v2f_association`.
+    kernel_memory_mb : store the pair kernel of a step if it fits in this many MB,
+        else recompute it for each use.
+    """
+
+    n_particles: int = 600
+    n_da_iterations: int = 5
+    n_correction_iterations: int = 1
+    resample_threshold: float = 1.0
+    association_threshold: float = 0.5
+    kernel_memory_mb: float = 512.0
+
+    @classmethod
+    def owner(cls) -> str:
+        return "rsu-bp"
+
+    def validate(self) -> None:
+        o = self.owner()
+        require(self.n_particles >= 2, o, "n_particles", self.n_particles, "be >= 2")
+        require(self.n_da_iterations >= 1, o, "n_da_iterations", self.n_da_iterations, "be >= 1")
+        require(self.n_correction_iterations >= 1, o, "n_correction_iterations",
+                self.n_correction_iterations, "be >= 1")
+        require(0.0 <= self.resample_threshold <= 1.0, o, "resample_threshold",
+                self.resample_threshold, "lie in [0, 1]")
+        require(0.0 <= self.association_threshold <= 1.0, o, "association_threshold",
+                self.association_threshold, "lie in [0, 1]")
+        require(self.kernel_memory_mb >= 0, o, "kernel_memory_mb", self.kernel_memory_mb, "be >= 0")
+
+
+def _log_positive(x: FloatArray) -> FloatArray:
+    """log of a non-negative message over the last axis; an all-zero message becomes 0."""
+    with np.errstate(divide="ignore"):
+        out = np.log(x)
+    dead = ~np.isfinite(out.max(axis=-1, initial=-np.inf))
+    return np.where(dead[..., None], 0.0, out)
+
+
+class RsuBP:
+    """Nonparametric BP at the RSU over all vehicles and features, with BP association."""
+
+    name: ClassVar[str] = "rsu-bp"
+    summary: ClassVar[str] = (
+        "centralized particle BP with loopy-BP data association at the road-side unit "
+        "(Fröhle et al. 2018)"
+    )
+    Params: ClassVar[type[Params]] = RsuBPParams
+    needs_truth: ClassVar[bool] = False
+    default_preset: ClassVar[str] = "froehle2018"
+
+    def __init__(self, setup: Setup, params: RsuBPParams, rng: np.random.Generator) -> None:
+        self.setup, self.params, self.rng = setup, params, rng
+        self.dx = setup.vehicle_layout.dim
+        self.Fx = setup.vehicle_motion.transition_matrix(setup.dt)
+        self.gnss = setup.sensors.get("gnss")
+        self.v2f = setup.sensors.get("v2f")
+        prior = setup.feature_prior
+        track = setup.feature_layout is not None and prior is not None and len(prior) > 0
+        if track and self.v2f is None:
+            track = False  # features are observed only through V2F rows
+        self.df = setup.feature_layout.dim if setup.feature_layout is not None else 0
+        if track:
+            order = np.argsort(prior.ids, kind="stable")
+            self.feature_ids: IntArray = prior.ids[order]
+            self._feature_prior = Gaussians(prior.mean[order], prior.cov[order])
+            self.Ff = setup.feature_motion.transition_matrix(setup.dt)
+        else:
+            self.feature_ids = np.zeros(0, dtype=np.int64)
+        self.features: Particles | None = None        # None until initialised from V2F rows
+        self.feature_gauss: Gaussians | None = None   # predicted prior until then
+        self.vehicle_ids: IntArray = np.zeros(0, dtype=np.int64)
+        N = params.n_particles
+        self.vehicles = Particles(np.zeros((0, N, self.dx)), np.zeros((0, N)))
+        self.last_k: int | None = None
+        self.p_d = float(setup.detection_probability)
+        self.clutter_intensity = 0.0
+        if setup.clutter_rate > 0:
+            if setup.clutter_region is None:
+                raise ConfigError("rsu-bp: Setup.clutter_rate > 0 needs Setup.clutter_region "
+                                  "(the clutter density is uniform over it)")
+            region = np.asarray(setup.clutter_region)
+            self.clutter_intensity = setup.clutter_rate / float(np.prod(region[:, 1] - region[:, 0]))
+
+    # ------------------------------------------------------------------ step
+
+    def step(self, frame: Frame) -> Estimate:
+        steps = frame.k - self.last_k if self.last_k is not None else None
+        self.last_k = frame.k
+        gnss_used = self._vehicles_sync_predict(frame, steps)
+        self._features_predict(frame, steps)
+        log_phi_chi = self.vehicles.log_weights + self._gnss_loglik(frame, gnss_used)  # φ χ
+        info: dict[str, Any] = {}
+        v2f = frame.batches.get("v2f")
+        n_rows = len(v2f) if v2f is not None else 0
+        decided = np.full(n_rows, -1, dtype=np.int64)
+        rows = np.zeros(0, dtype=np.int64)
+        if n_rows and self.feature_ids.size and len(self.vehicles):
+            rows = np.flatnonzero(lookup_ids(self.vehicle_ids, v2f.sensor)[1])
+        log_bx = log_phi_chi
+        if rows.size and self.features is None:
+            self._features_init(v2f.select(rows), log_phi_chi)
+            info["features_initialised"] = True
+        elif rows.size:
+            log_bx, log_bf, assoc = self._bp_update(v2f.select(rows), log_phi_chi)
+            self.features = Particles(self.features.samples, normalize_log_weights(log_bf)[0])
+            decided[rows] = assoc.pop("decided")
+            info.update(assoc)
+        self.vehicles = Particles(self.vehicles.samples, normalize_log_weights(log_bx)[0])
+        info["v2f_association"] = decided
+        estimate = self._estimate(info)
+        self._resample()
+        return estimate
+
+    # ------------------------------------------------------------ vehicles
+
+    def _vehicles_sync_predict(self, frame: Frame, steps: int | None) -> np.ndarray:
+        """Drop leaving vehicles, predict the others (11), birth entering ones.
+
+        Returns the mask (over the sorted present ids) of vehicles born this step
+        whose first GNSS fix is already in their particles.
+        """
+        present = np.unique(frame.vehicles)
+        keep = np.isin(self.vehicle_ids, present)
+        ids, cont = self.vehicle_ids[keep], self.vehicles.take(keep)
+        if len(cont) and steps:
+            for _ in range(steps):
+                mean = np.einsum("nl,nld->nd", cont.weights, cont.samples)
+                Q = self.setup.vehicle_motion.noise_covariance(self.setup.dt, mean)
+                cont = propagate_linear(cont, self.Fx, Q, self.rng)
+        born_ids = np.setdiff1d(present, ids)
+        used = np.zeros(born_ids.size, dtype=bool)
+        N = self.params.n_particles
+        born = Particles(np.zeros((0, N, self.dx)), np.zeros((0, N)))
+        if born_ids.size:
+            belief = birth_beliefs(self.setup, born_ids, frame)
+            belief, used = self._first_fix(belief, born_ids, frame.batches.get("gnss"))
+            born = sample_gaussians(belief.mean, belief.cov, N, self.rng)
+        all_ids = np.concatenate([ids, born_ids])
+        order = np.argsort(all_ids, kind="stable")
+        self.vehicle_ids = all_ids[order]
+        self.vehicles = Particles(np.concatenate([cont.samples, born.samples])[order],
+                                  np.concatenate([cont.log_weights, born.log_weights])[order])
+        return np.concatenate([np.zeros(ids.size, bool), used])[order]
+
+    def _first_fix(self, belief: Gaussians, ids: IntArray, gnss: Batch | None
+                   ) -> tuple[Gaussians, np.ndarray]:
+        """Kalman-update birth beliefs with each vehicle's first GNSS row, where it has one."""
+        used = np.zeros(ids.size, dtype=bool)
+        if gnss is None or not len(gnss) or self.gnss is None:
+            return belief, used
+        row, found = lookup_ids(gnss.subject, ids)
+        if not found.any():
+            return belief, used
+        H = self.gnss.observation_matrix(self.dx)
+        post = kf_update(belief.take(found), gnss.z[row[found]], H, gnss.cov[row[found]])
+        mean, cov = belief.mean.copy(), belief.cov.copy()
+        mean[found], cov[found] = post.mean, post.cov
+        return Gaussians(mean, cov), found
+
+    def _gnss_loglik(self, frame: Frame, used: np.ndarray) -> FloatArray:
+        """log χ_s(x_l) (n, N_p): every GNSS row of a present vehicle (eq. (8))."""
+        out = np.zeros(self.vehicles.log_weights.shape)
+        gnss = frame.batches.get("gnss")
+        if gnss is None or not len(gnss) or self.gnss is None or not len(self.vehicles):
+            return out
+        pos, found = lookup_ids(self.vehicle_ids, gnss.subject)
+        take = found & ~used[pos]
+        if not take.any():
+            return out
+        s = pos[take]
+        H = self.gnss.observation_matrix(self.dx)
+        residual = gnss.z[take][:, None, :] - self.vehicles.samples[s] @ H.T      # (R, N_p, dz)
+        loglik = gaussian_logpdf(residual, gnss.cov[take][:, None])               # (R, N_p)
+        np.add.at(out, s, loglik)
+        return out
+
+    # ------------------------------------------------------------ features
+
+    def _features_predict(self, frame: Frame, steps: int | None) -> None:
+        """α_k (10); before initialisation, the Gaussian prior predicted to this step."""
+        if not self.feature_ids.size:
+            return
+        motion, dt = self.setup.feature_motion, self.setup.dt
+        if self.features is None:
+            if self.feature_gauss is None:   # the prior holds at step 0
+                self.feature_gauss = predict_steps(self._feature_prior, motion, dt, frame.k)
+            elif steps:
+                self.feature_gauss = predict_steps(self.feature_gauss, motion, dt, steps)
+            return
+        for _ in range(steps or 0):
+            mean = np.einsum("nl,nld->nd", self.features.weights, self.features.samples)
+            self.features = propagate_linear(self.features, self.Ff,
+                                             motion.noise_covariance(dt, mean), self.rng)
+
+    def _features_init(self, v2f: Batch, log_phi_chi: FloatArray) -> None:
+        """Draw feature particles around the V2F detections (see module docstring)."""
+        N, K = self.params.n_particles, self.feature_ids.size
+        Hx = self.v2f.observation_matrix(self.dx)
+        pos_f = np.asarray(self.v2f.state_indices)
+        s_row = lookup_ids(self.vehicle_ids, v2f.sensor)[0]
+        vehicles = Particles(self.vehicles.samples, normalize_log_weights(log_phi_chi)[0])
+        _, cov = weighted_moments(vehicles)
+        spread = np.trace(cov[:, :, list(self.setup.vehicle_layout.position)]
+                          [:, list(self.setup.vehicle_layout.position)], axis1=1, axis2=2)
+        anchor = s_row[np.argmin(spread[s_row])]
+        anchor_rows = np.flatnonzero(s_row == anchor)
+        # one row per particle: row k of the anchor for feature k, else any row
+        choice = np.empty((K, N), dtype=np.int64)
+        for k in range(K):
+            choice[k] = anchor_rows[k] if k < anchor_rows.size else self.rng.integers(0, len(v2f), N)
+        s = s_row[choice]                                                        # (K, N)
+        idx = systematic_resample(vehicles.log_weights, self.rng)                # (n, N)
+        x = self.vehicles.samples[s, idx[s, np.arange(N)[None, :]]]              # (K, N, dx)
+        L = np.linalg.cholesky(v2f.cov[choice])                                   # (K, N, dz, dz)
+        w = np.einsum("knde,kne->knd", L, self.rng.standard_normal((*choice.shape, pos_f.size)))
+        p = x @ Hx.T + v2f.z[choice] + w                                          # H f = H x + z + w
+        # the rest of the state from the Gaussian prior conditioned on the position
+        prior = self.feature_gauss
+        rest = np.setdiff1d(np.arange(self.df), pos_f)
+        f = np.empty((K, N, self.df))
+        f[:, :, pos_f] = p
+        if rest.size:
+            P_pp = prior.cov[:, pos_f][:, :, pos_f]
+            P_rp = prior.cov[:, rest][:, :, pos_f]
+            P_rr = prior.cov[:, rest][:, :, rest]
+            gain = np.linalg.solve(P_pp, np.swapaxes(P_rp, 1, 2)).transpose(0, 2, 1)   # P_rp P_pp⁻¹
+            cond_mean = prior.mean[:, None, rest] + np.einsum(
+                "kre,kne->knr", gain, p - prior.mean[:, None, pos_f])
+            cond_cov = P_rr - gain @ np.swapaxes(P_rp, 1, 2)
+            noise = sample_gaussians(np.zeros((K, rest.size)), 0.5 * (cond_cov + np.swapaxes(cond_cov, 1, 2)),
+                                     N, self.rng).samples
+            f[:, :, rest] = cond_mean + noise
+        self.features = Particles.uniform(f)
+        self.feature_gauss = None
+
+    # ------------------------------------------------------------ BP update
+
+    def _bp_update(self, v2f: Batch, log_phi_chi: FloatArray
+                   ) -> tuple[FloatArray, FloatArray, dict[str, Any]]:
+        """Steps 2–6 on the V2F rows of present vehicles: log-beliefs and association."""
+        prm, p_d = self.params, self.p_d
+        X, Fp = self.vehicles.samples, self.features.samples
+        S, K, N = X.shape[0], Fp.shape[0], prm.n_particles
+        R = len(v2f)
+        Hx, Hf = self.v2f.observation_matrix(self.dx), self.v2f.observation_matrix(self.df)
+        s_row = lookup_ids(self.vehicle_ids, v2f.sensor)[0]                       # (R,)
+        # blocks b = r K + k: row r of vehicle s_r against feature k
+        s_b, k_b = np.repeat(s_row, K), np.tile(np.arange(K), R)
+        z_b, cov_b = np.repeat(v2f.z, K, axis=0), np.repeat(v2f.cov, K, axis=0)
+        a_b = (Fp @ Hf.T)[k_b]                                                    # H f_j
+        c_b = (X @ Hx.T)[s_b]                                                     # H x_l
+        log_wx = normalize_log_weights(log_phi_chi)[0]                            # ρ^(0) = φχ
+        wx = np.exp(log_wx)
+        wf = self.features.weights                                                # α
+        store = s_b.size * N * N * 8 <= prm.kernel_memory_mb * 2**20
+        G = pair_kernel(z_b, cov_b, a_b, c_b) if store else None
+
+        def over_x(weights: FloatArray) -> FloatArray:      # Σ_l w_{b,l} G[b, j, l]
+            return (G @ weights[:, :, None])[:, :, 0] if G is not None else \
+                pair_kernel_sum(z_b, cov_b, a_b, c_b, weights)
+
+        def over_f(weights: FloatArray) -> FloatArray:      # Σ_j w_{b,j} G[b, j, l]
+            return (weights[:, None, :] @ G)[:, 0, :] if G is not None else \
+                pair_kernel_sum(-z_b, cov_b, c_b, a_b, weights)
+
+        # Step 2: β_{k,s}(m) (14)
+        lx = over_x(wx[s_b])                                                      # (B, N)
+        beta = np.einsum("bj,bj->b", lx, wf[k_b]).reshape(R, K)
+        # Steps 3–4: DA per vehicle (15)–(20)
+        index, mask = padded_groups(s_row, S)
+        slot = np.empty(R, dtype=np.int64)
+        slot[index[mask]] = np.nonzero(mask)[1]
+        with np.errstate(divide="ignore"):
+            log_beta = np.log(beta)[index].transpose(0, 2, 1)                      # (S, K, Mmax)
+        log_psi, log_missed, log_kappa = association_weights(log_beta, p_d, self.clutter_intensity)
+        marg = bp_association(log_psi, log_missed, log_kappa, prm.n_da_iterations,
+                              measurement_mask=mask)
+        nu = np.exp(marg.log_nu[s_row, :, slot])                                  # (R, K) ν_{m→k}
+        coef = (p_d * nu).reshape(-1)                                             # per block
+        psi0 = 1.0 - p_d
+        has_rows = np.bincount(s_row, minlength=S) > 0
+
+        def per_sensor(sums: FloatArray) -> FloatArray:
+            """(1 − P_D) + P_D Σ_m ν_{m→k} sums[m, k] for each (s, k), log; 0 without rows."""
+            acc = np.zeros((S, K, sums.shape[-1]))
+            np.add.at(acc, s_row, (coef[:, None] * sums).reshape(R, K, -1))
+            return np.where(has_rows[:, None, None], _log_positive(psi0 + acc), 0.0)
+
+        # Step 5: measurement correction (21)–(24)
+        log_alpha = self.features.log_weights                                     # (K, N)
+        log_gamma = per_sensor(lx)                                                # (S, K, N_f) (21)
+        for i in range(prm.n_correction_iterations):
+            # α̃_{k,s} = α_k Π_{s'≠s} γ_{k,s'} (22)
+            log_at = log_alpha[None] + log_gamma.sum(axis=0, keepdims=True) - log_gamma
+            at = np.exp(normalize_log_weights(log_at)[0])                          # (S, K, N)
+            log_mu = per_sensor(over_f(at[s_b, k_b]))                              # (S, K, N_x) (23)
+            if i + 1 == prm.n_correction_iterations:
+                break
+            # ρ_{k,s} = φ_s χ_s Π_{k'≠k} μ_{k',s} (24), then γ again (21)
+            log_rho = log_wx[:, None] + log_mu.sum(axis=1, keepdims=True) - log_mu
+            rho = np.exp(normalize_log_weights(log_rho)[0])
+            log_gamma = per_sensor(over_x(rho[s_b, k_b]))
+        # Step 6: beliefs (25)–(26)
+        log_bf = log_alpha + log_gamma.sum(axis=0)
+        log_bx = log_phi_chi + log_mu.sum(axis=1)
+        decided_idx = decide(marg, prm.association_threshold)                     # (S, Mmax)
+        chosen = decided_idx[s_row, slot]
+        info = {
+            "decided": np.where(chosen >= 0, self.feature_ids[np.maximum(chosen, 0)], -1),
+            "association": {
+                "feature_ids": self.feature_ids,
+                "measurement": marg.measurement[s_row, slot],                     # (R, K)
+                "clutter": marg.clutter[s_row, slot],                             # (R,)
+            },
+            "da_iterations": marg.iterations,
+            "kernel_pairs": int(s_b.size * N * N),
+            "kernel_stored": bool(store),
+        }
+        return log_bx, log_bf, info
+
+    # ------------------------------------------------------------ output
+
+    def _estimate(self, info: dict[str, Any]) -> Estimate:
+        N = self.params.n_particles
+        v_mean, v_cov = weighted_moments(self.vehicles)
+        vehicles = StateSet(self.vehicle_ids, v_mean, v_cov)
+        v_ess = effective_sample_size(self.vehicles.log_weights)
+        info["vehicle_ess"] = v_ess
+        features = None
+        if self.df and self.feature_ids.size:
+            if self.features is None:
+                f_mean, f_cov = self.feature_gauss.mean, self.feature_gauss.cov
+                f_ess = np.zeros(0)
+            else:
+                f_mean, f_cov = weighted_moments(self.features)
+                f_ess = effective_sample_size(self.features.log_weights)
+            features = StateSet(self.feature_ids, f_mean, f_cov)
+            info["feature_ess"] = f_ess
+        elif self.df:
+            features = StateSet.empty(self.df)
+            info["feature_ess"] = np.zeros(0)
+        ess = np.concatenate([v_ess, info["feature_ess"] if "feature_ess" in info else []])
+        info["degenerate"] = bool(ess.size and ess.min() < DEGENERACY_SHARE * N)
+        return Estimate(vehicles, features, info)
+
+    def _resample(self) -> None:
+        """Systematic resampling of the beliefs whose N_eff fell below the threshold."""
+        share = self.params.resample_threshold
+        for part in ("vehicles", "features"):
+            belief = getattr(self, part)
+            if belief is None or not len(belief):
+                continue
+            which = None if share >= 1.0 else (
+                effective_sample_size(belief.log_weights) < share * belief.n_particles)
+            setattr(self, part, resample(belief, self.rng, which))
