@@ -130,8 +130,10 @@ def _as_batch(log_psi: npt.ArrayLike, log_missed: npt.ArrayLike, log_clutter: np
         raise InvalidInputError(f"log_psi must have shape (B, K, M) or (K, M), got {log_psi.shape}")
     log_psi = log_psi[None] if single else log_psi
     B, K, M = log_psi.shape
-    log_missed = np.asarray(log_missed, dtype=float).reshape(-1, K) if K else np.zeros((B, 0))
-    log_clutter = np.asarray(log_clutter, dtype=float).reshape(-1, M) if M else np.zeros((B, 0))
+    log_missed = np.asarray(log_missed, dtype=float)
+    log_clutter = np.asarray(log_clutter, dtype=float)
+    log_missed = log_missed[None] if single and log_missed.ndim == 1 else log_missed
+    log_clutter = log_clutter[None] if single and log_clutter.ndim == 1 else log_clutter
     if log_missed.shape != (B, K):
         raise InvalidInputError(f"log_missed must have shape {(B, K)}, got {log_missed.shape}")
     if log_clutter.shape != (B, M):
@@ -280,6 +282,8 @@ def enumerate_associations(n_features: int, n_measurements: int) -> IntArray:
 
     No two features share a measurement. For tests of small cases only.
     """
+    if n_features == 0:
+        return np.zeros((1, 0), dtype=np.int64)  # one association: nothing to assign
     rows = []
     for n in range(min(n_features, n_measurements) + 1):
         for feats in itertools.combinations(range(n_features), n):

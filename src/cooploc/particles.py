@@ -18,15 +18,17 @@ held as `Particles(samples (n, N_p, d), log_weights (n, N_p))`: a batch of n bel
       G[b, j, l] = N(z_b; a_{b,j} − c_{b,l}, W_b),
 
   with a = H f (feature particles), c = H x (vehicle particles). `pair_kernel`
-  materialises G (B, N_j, N_l) once, so that β, γ and μ reuse it as matrix–vector
-  products; `pair_kernel_sum` returns Σ_l w_{b,l} G[b, j, l] (B, N_j) without storing G
-  (for when B N_j N_l doubles do not fit in memory). Both whiten with the Cholesky
+  materialises G once as a `PairKernel` — float32 values with a float64 log-scale per
+  row (each row divided by its largest entry, so nothing that matters underflows) —
+  and β, γ, μ reuse it as matrix–vector products returning logs;
+  `pair_kernel_log_sum` returns log Σ_l w_{b,l} G[b, j, l] (B, N_j) in float64 without
+  storing G (for when the pairs do not fit in memory). Both whiten with the Cholesky
   factor W = L Lᵀ (u = L⁻¹(z − a), v = L⁻¹ c, so the exponent is −½‖u + v‖²) and run a
-  numba `prange` loop over (b, j): measured on a 2-core machine at ~330 million pair
-  evaluations per second against 20–60 million for NumPy (broadcast, or a matmul for
-  the cross term followed by `np.exp`), whose temporaries of size B N_j N_l d dominate
-  (see `benchmarks/rsu_bp.py`). `pair_kernel_numpy` is the plain broadcast, kept as
-  the reference the benchmark compares against.
+  numba `prange` loop over (b, j) whose inner loops over l are contiguous. Measured on
+  the 2-core machine (while loaded by other jobs): float64 numba ~70–80 million pair
+  evaluations per second, float32 with row scaling ~125–135 million, plain NumPy
+  broadcast 15–20 million (temporaries of size B N_j N_l d); see
+  `benchmarks/rsu_bp.py`, which measures all three in one run.
 
 Complexity: O(B N_j N_l d) for the kernel; O(n N_p) for everything else.
 """
@@ -44,12 +46,13 @@ from cooploc.errors import InvalidInputError
 from cooploc.types import FloatArray, IntArray
 
 __all__ = [
+    "PairKernel",
     "Particles",
     "effective_sample_size",
     "normalize_log_weights",
     "pair_kernel",
+    "pair_kernel_log_sum",
     "pair_kernel_numpy",
-    "pair_kernel_sum",
     "propagate_linear",
     "resample",
     "sample_gaussians",
@@ -233,8 +236,8 @@ def _whiten(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray
 
 
 @numba.njit(fastmath=True, cache=True, inline="always")
-def _row(u: FloatArray, vt: FloatArray, c0: float, b: int, j: int, row: FloatArray) -> None:
-    """row[l] = exp(c0 − ½ Σ_e (u[b, j, e] + vt[b, e, l])²): contiguous in l, so it vectorises."""
+def _quadratic_row(u: FloatArray, vt: FloatArray, b: int, j: int, row: np.ndarray) -> None:
+    """row[l] = Σ_e (u[b, j, e] + vt[b, e, l])²: contiguous in l, so it vectorises."""
     d, Nl = vt.shape[1], vt.shape[2]
     for l in range(Nl):
         row[l] = 0.0
@@ -243,37 +246,84 @@ def _row(u: FloatArray, vt: FloatArray, c0: float, b: int, j: int, row: FloatArr
         for l in range(Nl):
             t = ue + vt[b, e, l]
             row[l] += t * t
-    for l in range(Nl):
-        row[l] = np.exp(c0 - 0.5 * row[l])
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
-def _kernel_matrix(u: FloatArray, vt: FloatArray, log_norm: FloatArray, out: FloatArray) -> None:
+def _kernel_matrix(u: np.ndarray, vt: np.ndarray, out: np.ndarray, shift: FloatArray) -> None:
+    """out[b, j, l] = exp(−½ (q_bjl − min_l q_bjl)) in float32; shift[b, j] = −½ min_l q_bjl."""
     B, Nj = u.shape[0], u.shape[1]
+    Nl = vt.shape[2]
+    half = np.float32(0.5)
     for bj in numba.prange(B * Nj):
         b = bj // Nj
         j = bj - b * Nj
-        _row(u, vt, log_norm[b], b, j, out[b, j])
+        row = out[b, j]
+        _quadratic_row(u, vt, b, j, row)
+        q_min = row[0]
+        for l in range(Nl):
+            q_min = min(q_min, row[l])
+        shift[b, j] = -0.5 * q_min
+        for l in range(Nl):
+            row[l] = np.exp(-half * (row[l] - q_min))
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _kernel_sum(u: FloatArray, vt: FloatArray, log_norm: FloatArray, w: FloatArray,
                 out: FloatArray) -> None:
+    """out[b, j] = log Σ_l w[b, l] exp(log_norm[b] − ½ q_bjl), in float64, shifted by min q."""
     B, Nj = u.shape[0], u.shape[1]
     Nl = vt.shape[2]
     for bj in numba.prange(B * Nj):
         b = bj // Nj
         j = bj - b * Nj
         row = np.empty(Nl)
-        _row(u, vt, log_norm[b], b, j, row)
+        _quadratic_row(u, vt, b, j, row)
+        q_min = row[0]
+        for l in range(Nl):
+            q_min = min(q_min, row[l])
         acc = 0.0
         for l in range(Nl):
-            acc += w[b, l] * row[l]
-        out[b, j] = acc
+            acc += w[b, l] * np.exp(-0.5 * (row[l] - q_min))
+        out[b, j] = log_norm[b] - 0.5 * q_min + np.log(acc)
 
 
-def pair_kernel(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray) -> FloatArray:
-    """G[b, j, l] = N(z_b; a_{b,j} − c_{b,l}, cov_b), all pairs, (B, N_j, N_l).
+@dataclass(frozen=True, slots=True)
+class PairKernel:
+    """Kernel values of all particle pairs of B blocks, stored once and reused.
+
+    G[b, j, l] = exp(log_scale[b, j]) · values[b, j, l]: `values` (B, N_j, N_l) float32
+    in (0, 1] (each row scaled by its largest entry, so float32 loses no range that
+    matters), `log_scale` (B, N_j) float64. Sums come back as logs.
+    """
+
+    values: npt.NDArray[np.float32]
+    log_scale: FloatArray
+
+    def dense(self) -> FloatArray:
+        """G (B, N_j, N_l) in float64 (for tests and small problems)."""
+        return np.exp(self.log_scale)[:, :, None] * self.values.astype(float)
+
+    def log_sum_over_second(self, weights: FloatArray) -> FloatArray:
+        """log Σ_l w[b, l] G[b, j, l], (B, N_j), for weights w (B, N_l) ≥ 0."""
+        s = (self.values @ np.asarray(weights, np.float32)[:, :, None])[:, :, 0]
+        with np.errstate(divide="ignore"):
+            return self.log_scale + np.log(s.astype(float))
+
+    def log_sum_over_first(self, weights: FloatArray) -> FloatArray:
+        """log Σ_j w[b, j] G[b, j, l], (B, N_l), for weights w (B, N_j) ≥ 0."""
+        weights = np.asarray(weights, float)
+        with np.errstate(divide="ignore"):
+            lw = np.where(weights > 0, np.log(weights), -np.inf) + self.log_scale
+        top = lw.max(axis=1, keepdims=True)
+        top = np.where(np.isfinite(top), top, 0.0)
+        w = np.exp(lw - top).astype(np.float32)
+        s = (w[:, None, :] @ self.values)[:, 0, :]
+        with np.errstate(divide="ignore"):
+            return top + np.log(s.astype(float))
+
+
+def pair_kernel(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray) -> PairKernel:
+    """G[b, j, l] = N(z_b; a_{b,j} − c_{b,l}, cov_b) for all pairs, as a `PairKernel`.
 
     Parameters
     ----------
@@ -282,29 +332,32 @@ def pair_kernel(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray) ->
     c : (B, N_l, d) second particle set mapped to measurement space (e.g. H x_l).
     """
     u, vt, log_norm = _whiten(z, cov, a, c)
-    out = np.empty((u.shape[0], u.shape[1], vt.shape[2]))
-    if out.size:
-        _kernel_matrix(u, vt, log_norm, out)
-    return out
+    values = np.empty((u.shape[0], u.shape[1], vt.shape[2]), dtype=np.float32)
+    shift = np.zeros(u.shape[:2])
+    if values.size:
+        _kernel_matrix(u.astype(np.float32), vt.astype(np.float32), values, shift)
+    return PairKernel(values, log_norm[:, None] + shift)
 
 
-def pair_kernel_sum(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray,
-                    weights: FloatArray) -> FloatArray:
-    """Σ_l w_{b,l} N(z_b; a_{b,j} − c_{b,l}, cov_b), (B, N_j), without storing the pairs.
+def pair_kernel_log_sum(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray,
+                        weights: FloatArray) -> FloatArray:
+    """log Σ_l w_{b,l} N(z_b; a_{b,j} − c_{b,l}, cov_b), (B, N_j), without storing the pairs.
 
-    `weights` (B, N_l) are linear weights of the c-particles. The sum over j for fixed l
-    is the same call with the roles swapped: `pair_kernel_sum(-z, cov, c, a, w_a)`.
+    `weights` (B, N_l) ≥ 0 are linear weights of the c-particles (−inf where they sum to
+    0). The sum over j for fixed l is the same call with the roles swapped:
+    `pair_kernel_log_sum(-z, cov, c, a, w_a)`.
     """
     u, vt, log_norm = _whiten(z, cov, a, c)
     w = np.ascontiguousarray(np.broadcast_to(np.asarray(weights, float), (vt.shape[0], vt.shape[2])))
     out = np.empty(u.shape[:2])
     if out.size:
-        _kernel_sum(u, vt, log_norm, w, out)
+        with np.errstate(divide="ignore"):
+            _kernel_sum(u, vt, log_norm, w, out)
     return out
 
 
 def pair_kernel_numpy(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray) -> FloatArray:
-    """The same G as `pair_kernel` by a plain NumPy broadcast (reference for benchmarks)."""
+    """The same G as `pair_kernel` by a plain NumPy broadcast in float64 (benchmark reference)."""
     u, vt, log_norm = _whiten(z, cov, a, c)
     r = u[:, :, None, :] + np.swapaxes(vt, 1, 2)[:, None, :, :]          # (B, N_j, N_l, d)
     return np.exp(log_norm[:, None, None] - 0.5 * (r**2).sum(-1))

@@ -69,7 +69,7 @@ from cooploc.particles import (
     effective_sample_size,
     normalize_log_weights,
     pair_kernel,
-    pair_kernel_sum,
+    pair_kernel_log_sum,
     propagate_linear,
     resample,
     sample_gaussians,
@@ -124,12 +124,13 @@ class RsuBPParams(Params):
         require(self.kernel_memory_mb >= 0, o, "kernel_memory_mb", self.kernel_memory_mb, "be >= 0")
 
 
-def _log_positive(x: FloatArray) -> FloatArray:
-    """log of a non-negative message over the last axis; an all-zero message becomes 0."""
+def _log_sum(x: FloatArray, axis: int) -> FloatArray:
+    """log Σ exp(x) along `axis`; −inf where every term is −inf (no warning, no NaN)."""
+    top = x.max(axis=axis, keepdims=True, initial=-np.inf)
+    safe = np.where(np.isfinite(top), top, 0.0)
     with np.errstate(divide="ignore"):
-        out = np.log(x)
-    dead = ~np.isfinite(out.max(axis=-1, initial=-np.inf))
-    return np.where(dead[..., None], 0.0, out)
+        out = np.log(np.exp(x - safe).sum(axis=axis, keepdims=True)) + safe
+    return np.squeeze(out, axis=axis)
 
 
 class RsuBP:
@@ -340,56 +341,56 @@ class RsuBP:
         R = len(v2f)
         Hx, Hf = self.v2f.observation_matrix(self.dx), self.v2f.observation_matrix(self.df)
         s_row = lookup_ids(self.vehicle_ids, v2f.sensor)[0]                       # (R,)
-        # blocks b = r K + k: row r of vehicle s_r against feature k
+        # blocks b = r K + k: row r (of vehicle s_r) against feature k
         s_b, k_b = np.repeat(s_row, K), np.tile(np.arange(K), R)
         z_b, cov_b = np.repeat(v2f.z, K, axis=0), np.repeat(v2f.cov, K, axis=0)
         a_b = (Fp @ Hf.T)[k_b]                                                    # H f_j
         c_b = (X @ Hx.T)[s_b]                                                     # H x_l
         log_wx = normalize_log_weights(log_phi_chi)[0]                            # ρ^(0) = φχ
-        wx = np.exp(log_wx)
-        wf = self.features.weights                                                # α
-        store = s_b.size * N * N * 8 <= prm.kernel_memory_mb * 2**20
+        store = s_b.size * N * N * 4 <= prm.kernel_memory_mb * 2**20
         G = pair_kernel(z_b, cov_b, a_b, c_b) if store else None
 
-        def over_x(weights: FloatArray) -> FloatArray:      # Σ_l w_{b,l} G[b, j, l]
-            return (G @ weights[:, :, None])[:, :, 0] if G is not None else \
-                pair_kernel_sum(z_b, cov_b, a_b, c_b, weights)
+        def over_x(weights: FloatArray) -> FloatArray:      # log Σ_l w_{b,l} G[b, j, l]
+            return G.log_sum_over_second(weights) if G is not None else \
+                pair_kernel_log_sum(z_b, cov_b, a_b, c_b, weights)
 
-        def over_f(weights: FloatArray) -> FloatArray:      # Σ_j w_{b,j} G[b, j, l]
-            return (weights[:, None, :] @ G)[:, 0, :] if G is not None else \
-                pair_kernel_sum(-z_b, cov_b, c_b, a_b, weights)
+        def over_f(weights: FloatArray) -> FloatArray:      # log Σ_j w_{b,j} G[b, j, l]
+            return G.log_sum_over_first(weights) if G is not None else \
+                pair_kernel_log_sum(-z_b, cov_b, c_b, a_b, weights)
 
-        # Step 2: β_{k,s}(m) (14)
-        lx = over_x(wx[s_b])                                                      # (B, N)
-        beta = np.einsum("bj,bj->b", lx, wf[k_b]).reshape(R, K)
-        # Steps 3–4: DA per vehicle (15)–(20)
+        # Step 2: β_{k,s}(m) = Σ_j α_j Σ_l (φχ)_l G (14)
+        log_lx = over_x(np.exp(log_wx)[s_b])                                      # (B, N_f)
+        log_beta = _log_sum(log_lx + self.features.log_weights[k_b], axis=1).reshape(R, K)
+        # Steps 3–4: data association per vehicle (15)–(20), padded to (S, K, M_max)
         index, mask = padded_groups(s_row, S)
         slot = np.empty(R, dtype=np.int64)
         slot[index[mask]] = np.nonzero(mask)[1]
-        with np.errstate(divide="ignore"):
-            log_beta = np.log(beta)[index].transpose(0, 2, 1)                      # (S, K, Mmax)
-        log_psi, log_missed, log_kappa = association_weights(log_beta, p_d, self.clutter_intensity)
+        log_psi, log_missed, log_kappa = association_weights(
+            log_beta[index].transpose(0, 2, 1), p_d, self.clutter_intensity)
         marg = bp_association(log_psi, log_missed, log_kappa, prm.n_da_iterations,
                               measurement_mask=mask)
-        nu = np.exp(marg.log_nu[s_row, :, slot])                                  # (R, K) ν_{m→k}
-        coef = (p_d * nu).reshape(-1)                                             # per block
-        psi0 = 1.0 - p_d
-        has_rows = np.bincount(s_row, minlength=S) > 0
+        # log P_D ν_{m→k} per block: the weight of measurement m in γ and μ
+        log_coef = np.log(p_d) + marg.log_nu[s_row, :, slot]                      # (R, K)
+        with np.errstate(divide="ignore"):
+            log_psi0 = np.log1p(-p_d) if p_d < 1 else -np.inf
+        has_rows = mask.any(axis=1)
 
-        def per_sensor(sums: FloatArray) -> FloatArray:
-            """(1 − P_D) + P_D Σ_m ν_{m→k} sums[m, k] for each (s, k), log; 0 without rows."""
-            acc = np.zeros((S, K, sums.shape[-1]))
-            np.add.at(acc, s_row, (coef[:, None] * sums).reshape(R, K, -1))
-            return np.where(has_rows[:, None, None], _log_positive(psi0 + acc), 0.0)
+        def per_sensor(log_sums: FloatArray) -> FloatArray:
+            """log[(1 − P_D) + P_D Σ_m ν_{m→k} sums] per (s, k) (21), (23); 0 without rows."""
+            terms = (log_coef[:, :, None] + log_sums.reshape(R, K, -1))[index]     # (S, M, K, N)
+            terms = np.where(mask[:, :, None, None], terms, -np.inf)
+            total = np.logaddexp(log_psi0, _log_sum(terms, axis=1))               # (S, K, N)
+            dead = ~np.isfinite(total.max(axis=2, initial=-np.inf))               # no information
+            return np.where(has_rows[:, None, None] & ~dead[:, :, None], total, 0.0)
 
         # Step 5: measurement correction (21)–(24)
         log_alpha = self.features.log_weights                                     # (K, N)
-        log_gamma = per_sensor(lx)                                                # (S, K, N_f) (21)
+        log_gamma = per_sensor(log_lx)                                            # (21), ρ^(0)
         for i in range(prm.n_correction_iterations):
             # α̃_{k,s} = α_k Π_{s'≠s} γ_{k,s'} (22)
             log_at = log_alpha[None] + log_gamma.sum(axis=0, keepdims=True) - log_gamma
             at = np.exp(normalize_log_weights(log_at)[0])                          # (S, K, N)
-            log_mu = per_sensor(over_f(at[s_b, k_b]))                              # (S, K, N_x) (23)
+            log_mu = per_sensor(over_f(at[s_b, k_b]))                              # (23)
             if i + 1 == prm.n_correction_iterations:
                 break
             # ρ_{k,s} = φ_s χ_s Π_{k'≠k} μ_{k',s} (24), then γ again (21)
@@ -399,8 +400,7 @@ class RsuBP:
         # Step 6: beliefs (25)–(26)
         log_bf = log_alpha + log_gamma.sum(axis=0)
         log_bx = log_phi_chi + log_mu.sum(axis=1)
-        decided_idx = decide(marg, prm.association_threshold)                     # (S, Mmax)
-        chosen = decided_idx[s_row, slot]
+        chosen = decide(marg, prm.association_threshold)[s_row, slot]
         info = {
             "decided": np.where(chosen >= 0, self.feature_ids[np.maximum(chosen, 0)], -1),
             "association": {
