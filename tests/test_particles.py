@@ -49,7 +49,7 @@ def direct_kernel(z, cov, a, c) -> np.ndarray:
     out = np.empty((B, Nj, Nl))
     for b in range(B):
         for j in range(Nj):
-            for l in range(Nl):  # noqa: E741
+            for l in range(Nl):
                 out[b, j, l] = multivariate_normal(a[b, j] - c[b, l], cov[b]).pdf(z[b])
     return out
 
@@ -84,7 +84,7 @@ def test_kernel_keeps_range_far_in_the_tail(rng: np.random.Generator) -> None:
     a = np.full((1, 3, 2), 40.0) + rng.normal(0, 0.1, (1, 3, 2))
     c = rng.normal(0, 0.1, (1, 4, 2))
     log_pairs = np.array([[multivariate_normal(a[0, j] - c[0, l], cov[0]).logpdf(z[0])
-                           for l in range(4)] for j in range(3)])  # noqa: E741
+                           for l in range(4)] for j in range(3)])
     ref = logsumexp(log_pairs, axis=1)[None]
     np.testing.assert_allclose(pair_kernel(z, cov, a, c).log_sum_over_second(np.ones((1, 4))), ref,
                                rtol=1e-6)

@@ -5,7 +5,7 @@ A belief is a weighted sample (Arulampalam et al. 2002, eq. (4); Fröhle 2018 eq
     b(x) ≈ Σ_l w_l δ(x − x_l),   Σ_l w_l = 1,
 
 held as `Particles(samples (n, N_p, d), log_weights (n, N_p))`: a batch of n beliefs
-(vehicles, features), weights in the log domain and normalised with `logsumexp`.
+(vehicles, features), weights in the log domain and normalised with `log_sum_exp`.
 
 - `systematic_resample` — one uniform draw per belief, N_p evenly spaced points on the
   weight CDF (Arulampalam et al. 2002, Alg. 2); O(n N_p) with `searchsorted`.
@@ -40,7 +40,6 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import numpy.typing as npt
-from scipy.special import logsumexp
 
 from cooploc.errors import InvalidInputError
 from cooploc.types import FloatArray, IntArray
@@ -49,6 +48,7 @@ __all__ = [
     "PairKernel",
     "Particles",
     "effective_sample_size",
+    "log_sum_exp",
     "normalize_log_weights",
     "pair_kernel",
     "pair_kernel_log_sum",
@@ -108,6 +108,20 @@ class Particles:
         return cls(samples, np.full((n, N), -np.log(N)) if N else np.zeros((n, 0)))
 
 
+def log_sum_exp(x: npt.ArrayLike, axis: int = -1, keepdims: bool = False) -> FloatArray:
+    """log Σ exp(x) along `axis`, stable; −inf where every term is −inf (no warning).
+
+    The same as `scipy.special.logsumexp` for real input, without its per-call overhead
+    (this runs several times per particle-filter step).
+    """
+    x = np.asarray(x, dtype=float)
+    top = x.max(axis=axis, keepdims=True, initial=-np.inf)
+    safe = np.where(np.isfinite(top), top, 0.0)
+    with np.errstate(divide="ignore"):
+        out = np.log(np.exp(x - safe).sum(axis=axis, keepdims=True)) + safe
+    return out if keepdims else np.squeeze(out, axis=axis)
+
+
 def normalize_log_weights(log_weights: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Normalise (…, N_p) log-weights over the last axis: (normalised, log of the total).
 
@@ -115,7 +129,7 @@ def normalize_log_weights(log_weights: npt.ArrayLike) -> tuple[FloatArray, Float
     total of −inf, so that no NaN can enter.
     """
     lw = np.asarray(log_weights, dtype=float)
-    total = logsumexp(lw, axis=-1, keepdims=True) if lw.shape[-1] else np.zeros((*lw.shape[:-1], 1))
+    total = log_sum_exp(lw, axis=-1, keepdims=True) if lw.shape[-1] else np.zeros((*lw.shape[:-1], 1))
     dead = ~np.isfinite(total)
     out = np.where(dead, -np.log(max(lw.shape[-1], 1)), lw - np.where(dead, 0.0, total))
     return out, total[..., 0]
@@ -124,7 +138,7 @@ def normalize_log_weights(log_weights: npt.ArrayLike) -> tuple[FloatArray, Float
 def effective_sample_size(log_weights: npt.ArrayLike) -> FloatArray:
     """N_eff = 1 / Σ_l w_l² of each belief (…,), from normalised log-weights (…, N_p)."""
     lw = np.asarray(log_weights, dtype=float)
-    return np.exp(-logsumexp(2.0 * lw, axis=-1))
+    return np.exp(-log_sum_exp(2.0 * lw, axis=-1))
 
 
 def systematic_resample(log_weights: npt.ArrayLike, rng: np.random.Generator,
@@ -137,7 +151,7 @@ def systematic_resample(log_weights: npt.ArrayLike, rng: np.random.Generator,
     lw = np.atleast_2d(np.asarray(log_weights, dtype=float))
     n, N = lw.shape
     n_out = N if n_out is None else int(n_out)
-    cdf = np.cumsum(np.exp(lw - logsumexp(lw, axis=1, keepdims=True)), axis=1)
+    cdf = np.cumsum(np.exp(lw - log_sum_exp(lw, axis=1, keepdims=True)), axis=1)
     cdf[:, -1] = 1.0                                            # guard round-off
     points = (rng.random((n, 1)) + np.arange(n_out)[None, :]) / n_out
     # searchsorted per row, vectorised by offsetting each row into its own interval

@@ -67,6 +67,7 @@ from cooploc.params import Params, require
 from cooploc.particles import (
     Particles,
     effective_sample_size,
+    log_sum_exp,
     normalize_log_weights,
     pair_kernel,
     pair_kernel_log_sum,
@@ -98,6 +99,8 @@ class RsuBPParams(Params):
         feature's marginal probability is at least this (else -1) in `v2f_association`.
     kernel_memory_mb : store the pair kernel of a step if it fits in this many MB,
         else recompute it for each use.
+    feature_init : "measurements" — draw the feature particles around the first V2F
+        detections (the paper's footnote 1); "prior" — sample `Setup.feature_prior`.
     """
 
     n_particles: int = 600
@@ -106,6 +109,7 @@ class RsuBPParams(Params):
     resample_threshold: float = 1.0
     association_threshold: float = 0.5
     kernel_memory_mb: float = 512.0
+    feature_init: str = "measurements"
 
     @classmethod
     def owner(cls) -> str:
@@ -122,15 +126,8 @@ class RsuBPParams(Params):
         require(0.0 <= self.association_threshold <= 1.0, o, "association_threshold",
                 self.association_threshold, "lie in [0, 1]")
         require(self.kernel_memory_mb >= 0, o, "kernel_memory_mb", self.kernel_memory_mb, "be >= 0")
-
-
-def _log_sum(x: FloatArray, axis: int) -> FloatArray:
-    """log Σ exp(x) along `axis`; −inf where every term is −inf (no warning, no NaN)."""
-    top = x.max(axis=axis, keepdims=True, initial=-np.inf)
-    safe = np.where(np.isfinite(top), top, 0.0)
-    with np.errstate(divide="ignore"):
-        out = np.log(np.exp(x - safe).sum(axis=axis, keepdims=True)) + safe
-    return np.squeeze(out, axis=axis)
+        require(self.feature_init in ("measurements", "prior"), o, "feature_init", self.feature_init,
+                "be 'measurements' or 'prior'")
 
 
 class RsuBP:
@@ -194,6 +191,10 @@ class RsuBP:
         if n_rows and self.feature_ids.size and len(self.vehicles):
             rows = np.flatnonzero(lookup_ids(self.vehicle_ids, v2f.sensor)[1])
         log_bx = log_phi_chi
+        if self.features is None and self.feature_ids.size and self.params.feature_init == "prior":
+            g = self.feature_gauss
+            self.features = sample_gaussians(g.mean, g.cov, self.params.n_particles, self.rng)
+            self.feature_gauss = None
         if rows.size and self.features is None:
             self._features_init(v2f.select(rows), log_phi_chi)
             info["features_initialised"] = True
@@ -360,7 +361,7 @@ class RsuBP:
 
         # Step 2: β_{k,s}(m) = Σ_j α_j Σ_l (φχ)_l G (14)
         log_lx = over_x(np.exp(log_wx)[s_b])                                      # (B, N_f)
-        log_beta = _log_sum(log_lx + self.features.log_weights[k_b], axis=1).reshape(R, K)
+        log_beta = log_sum_exp(log_lx + self.features.log_weights[k_b], axis=1).reshape(R, K)
         # Steps 3–4: data association per vehicle (15)–(20), padded to (S, K, M_max)
         index, mask = padded_groups(s_row, S)
         slot = np.empty(R, dtype=np.int64)
@@ -379,7 +380,7 @@ class RsuBP:
             """log[(1 − P_D) + P_D Σ_m ν_{m→k} sums] per (s, k) (21), (23); 0 without rows."""
             terms = (log_coef[:, :, None] + log_sums.reshape(R, K, -1))[index]     # (S, M, K, N)
             terms = np.where(mask[:, :, None, None], terms, -np.inf)
-            total = np.logaddexp(log_psi0, _log_sum(terms, axis=1))               # (S, K, N)
+            total = np.logaddexp(log_psi0, log_sum_exp(terms, axis=1))               # (S, K, N)
             dead = ~np.isfinite(total.max(axis=2, initial=-np.inf))               # no information
             return np.where(has_rows[:, None, None] & ~dead[:, :, None], total, 0.0)
 
