@@ -1,0 +1,25 @@
+"""The rsu-bp benchmark runs end to end at quick size and writes its JSON (no timing asserted)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_rsu_bp_benchmark_writes_json(tmp_path: Path) -> None:
+    spec = importlib.util.spec_from_file_location("bench_rsu_bp", ROOT / "benchmarks" / "rsu_bp.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    out = tmp_path / "rsu_bp.json"
+    assert module.main(["--quick", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    for entry in data["rsu_bp"].values():
+        assert entry["steps_per_second"] > 0 and entry["peak_memory_bytes_20_steps"] > 0
+        assert set(entry["vehicle_rmse"]) == {"rsu-bp", "oracle-kf", "gnss-kf"}
+    kernel = data["pair_kernel"]
+    for key in ("numba_stored_float32_pairs_per_second", "numba_fused_sum_float64_pairs_per_second",
+                "numpy_broadcast_float64_pairs_per_second"):
+        assert kernel[key] > 0
