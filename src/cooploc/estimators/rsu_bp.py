@@ -37,10 +37,12 @@ Choices the paper leaves open (DESIGN note):
   particles (10 m spread) with a 0.1 m GNSS likelihood.
 - Feature initialisation (the paper's footnote 1, "GNSS plus V2F measurement"): the
   K features of `Setup.feature_prior` stay Gaussian (their predicted prior) until the
-  first step with V2F rows. Then feature k is drawn around row k of the best-localised
-  vehicle (position H x + z + w, x from that vehicle's particles; velocity from the
-  Gaussian prior conditioned on that position); features beyond that vehicle's rows
-  are drawn from all rows at once. The V2F rows of that step are used for this only.
+  first step with V2F rows. Then feature k is drawn around the k-th row of the
+  best-localised vehicle (position H x + z + w, x from that vehicle's particles;
+  velocity from the Gaussian prior conditioned on that position), its rows ranked by
+  how well other vehicles' rows corroborate them (clutter is seen by one vehicle
+  only); features beyond that vehicle's rows are drawn from all rows at once. The
+  V2F rows of that step are used for this only.
   The features' priors are identical, so which estimated feature id matches which
   true feature is arbitrary: feature RMSE and association accuracy by id are only
   meaningful up to this relabelling.
@@ -297,11 +299,10 @@ class RsuBP:
         pos_f = np.asarray(self.v2f.state_indices)
         s_row = lookup_ids(self.vehicle_ids, v2f.sensor)[0]
         vehicles = Particles(self.vehicles.samples, normalize_log_weights(log_phi_chi)[0])
-        _, cov = weighted_moments(vehicles)
-        spread = np.trace(cov[:, :, list(self.setup.vehicle_layout.position)]
-                          [:, list(self.setup.vehicle_layout.position)], axis1=1, axis2=2)
-        anchor = s_row[np.argmin(spread[s_row])]
-        anchor_rows = np.flatnonzero(s_row == anchor)
+        mean, cov = weighted_moments(vehicles)
+        Hp = Hx @ cov @ Hx.T                                                       # (n, dz, dz)
+        anchor = s_row[np.argmin(np.trace(Hp, axis1=1, axis2=2)[s_row])]
+        anchor_rows = self._corroborated(v2f, s_row, anchor, mean @ Hx.T, Hp)
         # one row per particle: row k of the anchor for feature k, else any row
         choice = np.empty((K, N), dtype=np.int64)
         for k in range(K):
@@ -330,6 +331,25 @@ class RsuBP:
             f[:, :, rest] = cond_mean + noise
         self.features = Particles.uniform(f)
         self.feature_gauss = None
+
+    @staticmethod
+    def _corroborated(v2f: Batch, s_row: IntArray, anchor: int, pos: FloatArray, pos_cov: FloatArray
+                      ) -> IntArray:
+        """Rows of `anchor`, most corroborated by the other vehicles' rows first.
+
+        Row r places a feature at g_r = H x̂_s + z_r, covariance C_r = H P_s Hᵀ + W_r. A
+        real feature is seen by several vehicles, clutter by one: the score of an anchor
+        row is log Σ_{r' of other vehicles} N(g_r − g_r'; 0, C_r + C_r').
+        """
+        rows = np.flatnonzero(s_row == anchor)
+        others = np.flatnonzero(s_row != anchor)
+        if not others.size or rows.size < 2:
+            return rows
+        g = pos[s_row] + v2f.z                                                    # (R, dz)
+        C = pos_cov[s_row] + v2f.cov
+        diff = g[rows][:, None, :] - g[others][None, :, :]
+        score = log_sum_exp(gaussian_logpdf(diff, C[rows][:, None] + C[others][None, :]), axis=1)
+        return rows[np.argsort(-score, kind="stable")]
 
     # ------------------------------------------------------------ BP update
 
