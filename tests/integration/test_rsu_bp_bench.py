@@ -1,10 +1,12 @@
-"""The rsu-bp benchmark runs end to end at quick size and writes its JSON (no timing asserted)."""
+"""The rsu-bp benchmark and example run end to end at small size (no timing asserted)."""
 
 from __future__ import annotations
 
 import importlib.util
 import json
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -23,3 +25,12 @@ def test_rsu_bp_benchmark_writes_json(tmp_path: Path) -> None:
     for key in ("numba_stored_float32_pairs_per_second", "numba_fused_sum_float64_pairs_per_second",
                 "numpy_broadcast_float64_pairs_per_second"):
         assert kernel[key] > 0
+
+
+def test_rsu_bp_clutter_example() -> None:
+    spec = importlib.util.spec_from_file_location("ex_rsu_bp", ROOT / "examples" / "rsu_bp_clutter.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    rmse = module.main(["--small"])
+    assert set(rmse) == {"gnss-kf", "rsu-bp"}
+    assert all(np.isfinite(v).all() for v in rmse.values())
