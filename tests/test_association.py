@@ -3,7 +3,7 @@
 References: `exact_marginals` enumerates every admissible association (independent
 of the BP code path); on a tree (one feature, or one measurement) BP is exact; on
 loopy graphs it is an approximation, checked on well-separated cases (where loopy BP
-is known to be accurate, Williams & Lau 2014 §V) and for validity everywhere.
+is accurate) and for validity everywhere.
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def test_bp_is_exact_on_trees(K: int, M: int, rng: np.random.Generator) -> None:
 def test_bp_close_to_exact_when_well_separated(p_d: float, clutter: float,
                                                rng: np.random.Generator) -> None:
     # each feature has one clearly best measurement (likelihood ratio ≥ e^6): loopy BP
-    # is then accurate to a few 1e-3 (Williams & Lau 2014 §V)
+    # is then accurate to a few 1e-3
     K = M = 4
     for _ in range(10):
         perm = rng.permutation(M)

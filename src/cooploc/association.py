@@ -1,7 +1,7 @@
 """Data association by loopy belief propagation (Williams & Lau), vectorised over sensors.
 
-Model (one sensor; Fröhle 2018 §III-A eqs. (4)–(6), generalised as in Williams & Lau
-2014, IEEE TAES 50(4), §III): K features, M measurements. Feature k either generates
+Model (one sensor; Fröhle 2018 §III-A eqs. (4)–(6), generalised as in Williams & Lau,
+IEEE TAES 2014, Fröhle's ref. [7]): K features, M measurements. Feature k either generates
 one measurement, a_k = m ∈ {1..M}, or is missed, a_k = 0; measurement m either comes
 from one feature, b_m = k, or is clutter, b_m = 0; the two descriptions must agree
 (the indicator Ψ of eq. (6)). The joint association probability is
@@ -13,8 +13,8 @@ where L_{k,m} = ∫ p(z_m | state) belief(state) is the predicted likelihood (th
 Fröhle eq. (14)), λ the Poisson clutter rate and c the clutter density (uniform over a
 region: 1 / area). The paper's one-to-one case is P_D = 1, λ = 0, M = K.
 
-Loopy BP on the a–b graph (Fröhle eqs. (15)–(20); Williams & Lau eqs. (30)–(31)) in
-ratio form: with ν ≡ 1 initially (δ ≡ 1, eq. (16)), iterate p = 1..P
+Loopy BP on the a–b graph (Fröhle eqs. (15)–(20), in the simplified ratio form of
+Williams & Lau): with ν ≡ 1 initially (δ ≡ 1, eq. (16)), iterate p = 1..P
 
     μ_{k→m} = ψ_k(m) / (ψ_k(0) + Σ_{m'≠m} ψ_k(m') ν_{m'→k})        (eqs. (17), (19))
     ν_{m→k} = 1 / (κ_m + Σ_{k'≠k} μ_{k'→m})                        (eq. (18))
@@ -23,7 +23,8 @@ ratio form: with ν ≡ 1 initially (δ ≡ 1, eq. (16)), iterate p = 1..P
 P(a_k = m) ∝ ψ_k(m) ν_{m→k}, P(a_k = 0) ∝ ψ_k(0); P(b_m = k) ∝ μ_{k→m}, P(b_m = 0) ∝ κ_m.
 With κ ≡ 1 this is exactly Williams & Lau's form; a per-measurement κ is the same
 model with column m of ψ divided by κ_m. On a tree (K = 1 or M = 1) BP is exact;
-Williams & Lau prove convergence in general.
+with miss and clutter options the iterations converge (Williams & Lau 2010, Fröhle's
+ref. [15]).
 
 Numerical safety. Inputs are logs (−inf allowed: an impossible hypothesis). Rows and
 columns are rescaled by their maxima (each feature takes exactly one option and each
