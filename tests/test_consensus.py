@@ -8,11 +8,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cooploc.consensus import average_consensus, max_consensus, metropolis_weights, network_sum
+from cooploc.consensus import GroupConsensus, average_consensus, max_consensus, network_sum
 from cooploc.errors import InvalidInputError
 from cooploc.network import Network
 
-# Geometric convergence: 400 rounds on ≤ 12-node graphs leave errors far below this.
+# Rounds are chosen from the spectral gap for 1e-12 relative error; values are O(1).
 CONVERGED_ATOL = 1e-8
 
 
@@ -51,14 +51,26 @@ def test_duplicate_and_self_links_are_ignored() -> None:
 def test_metropolis_weights_are_doubly_stochastic(rng: np.random.Generator) -> None:
     n = 9
     net = Network(np.arange(n), _random_connected(rng, n, 6))
-    w = metropolis_weights(net)
-    assert w.shape == (net.n_edges, 1)
+    consensus = GroupConsensus(net, None, 1)
+    w = consensus.weights()
+    assert w.shape == (net.n_edges,)
     W = np.zeros((n, n))
-    W[net.target, net.source] = w[:, 0]
+    W[net.target[consensus.edges], net.source[consensus.edges]] = w
     W[np.arange(n), np.arange(n)] = 1.0 - W.sum(axis=1)
     np.testing.assert_allclose(W, W.T, atol=1e-15)
     np.testing.assert_allclose(W.sum(axis=0), 1.0, atol=1e-15)
     assert (np.diag(W) > 0).all()
+
+
+def _rounds_to_converge(net: Network, tol: float = 1e-12) -> int:
+    """Rounds after which Metropolis consensus is within `tol` (relative), from the spectral gap."""
+    n = net.n_agents
+    consensus = GroupConsensus(net, None, 1)
+    W = np.zeros((n, n))
+    W[net.target[consensus.edges], net.source[consensus.edges]] = consensus.weights()
+    W[np.arange(n), np.arange(n)] = 1.0 - W.sum(axis=1)
+    slem = np.sort(np.abs(np.linalg.eigvalsh(W)))[-2]       # second-largest eigenvalue modulus
+    return 1 if slem < tol else int(np.ceil(np.log(tol) / np.log(slem))) + 1
 
 
 @given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 12), extra=st.integers(0, 10))
@@ -68,12 +80,13 @@ def test_average_max_and_sum_converge_on_connected_graphs(seed: int, n: int, ext
     ids = rng.permutation(1000)[:n]
     links = ids[_random_connected(rng, n, extra)]
     net = Network(ids, links)
+    rounds = _rounds_to_converge(net)
     values = rng.normal(size=(n, 3, 2))
-    avg = average_consensus(net, values, 400)
+    avg = average_consensus(net, values, rounds)
     np.testing.assert_allclose(avg, np.broadcast_to(values.mean(axis=0), avg.shape), atol=CONVERGED_ATOL)
     mx = max_consensus(net, values, n)  # diameter ≤ n − 1
     np.testing.assert_array_equal(mx, np.broadcast_to(values.max(axis=0), mx.shape))
-    total = network_sum(net, values, 400)
+    total = network_sum(net, values, rounds)
     np.testing.assert_allclose(total, np.broadcast_to(values.sum(axis=0), total.shape), atol=1e-6)
 
 

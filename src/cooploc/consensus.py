@@ -31,115 +31,150 @@ converged, with no agent knowing how many members there are. Before the leader's
 indicator reaches an agent the ratio is undefined; the agent then uses its own
 value, the only sum it can vouch for.
 
-All traffic goes through `Network.exchange`, so messages and bytes are counted.
-Cost: O(N_cons E F · payload) per call.
+`GroupConsensus` is built once per step and membership: it finds the active (link,
+group) pairs, learns the Metropolis weights (one round) and, for sums, the leader of
+every group (max consensus, once), then serves any number of average / max / sum
+runs — a BP iteration per run — at O(N_cons P · payload) for P active pairs.
+
+All traffic goes through `Network.exchange_blocks`, so messages and bytes are counted.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
+from scipy import sparse
 
 from cooploc.errors import InvalidInputError
 from cooploc.network import Network
 from cooploc.types import FloatArray
 
-__all__ = ["average_consensus", "max_consensus", "metropolis_weights", "network_sum"]
+__all__ = ["GroupConsensus", "average_consensus", "max_consensus", "network_sum"]
 
 _Mask = npt.NDArray[np.bool_]
 
 
-def _groups(network: Network, values: np.ndarray, members: _Mask | None) -> tuple[np.ndarray, _Mask, _Mask]:
-    """Values as (n, F, rest), the member mask (n, F) and the active edges (E, F)."""
-    n = network.n_agents
-    if members is None:
-        x = values.reshape(n, 1, -1)
-        members = np.ones((n, 1), dtype=bool)
-    else:
-        members = np.asarray(members, dtype=bool)
-        if members.shape != values.shape[:2]:
+class GroupConsensus:
+    """Consensus among the members of each group over the links between members.
+
+    Parameters
+    ----------
+    network : the step's V2V network.
+    members : (n, G) which agents take part in each group; None: one group of all agents.
+    n_iterations : N_cons, rounds per run.
+    """
+
+    def __init__(self, network: Network, members: _Mask | None, n_iterations: int) -> None:
+        _check_iterations(n_iterations)
+        self.network = network
+        self.n_iterations = int(n_iterations)
+        n = network.n_agents
+        self.grouped = members is not None
+        self.members = np.ones((n, 1), dtype=bool) if members is None else np.asarray(members, dtype=bool)
+        if self.members.shape[0] != n:
             raise InvalidInputError(
-                f"consensus members must have shape {values.shape[:2]} (agents, groups), got {members.shape}"
+                f"consensus members must have one row per agent ({n}), got shape {self.members.shape}"
             )
-        x = values.reshape(n, members.shape[1], -1)
-    on = members[network.target] & members[network.source]
-    return x, members, on
+        G = self.members.shape[1]
+        on = self.members[network.target] & self.members[network.source]          # (E, G)
+        self.edges, self.blocks = np.nonzero(on)                                    # active pairs
+        self.slot = network.target[self.edges] * G + self.blocks                    # receiver (agent, group)
+        order = np.argsort(self.slot, kind="stable")
+        self.edges, self.blocks, self.slot = self.edges[order], self.blocks[order], self.slot[order]
+        P = self.edges.size
+        self._n_messages = int(np.unique(self.edges).size)
+        self._sum_into = sparse.csr_matrix((np.ones(P), (self.slot, np.arange(P))), shape=(n * G, P))
+        self._weights: FloatArray | None = None
+        self._leader: np.ndarray | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.edges.size > 0 and self.n_iterations > 0
+
+    def weights(self) -> FloatArray:
+        """(P,) Metropolis–Hastings weight of each active pair, from one round of degree exchange."""
+        if self._weights is None:
+            n, G = self.members.shape
+            degree = np.bincount(self.slot, minlength=n * G).astype(float).reshape(n, G)
+            received = self._exchange(degree)                                          # d_j
+            self._weights = 1.0 / (1.0 + np.maximum(degree.reshape(-1)[self.slot], received))
+        return self._weights
+
+    def average(self, values: npt.ArrayLike) -> FloatArray:
+        """Mean of `values` ((n, ...) or grouped (n, G, ...)) over each agent's group component."""
+        x, shape = self._as_blocks(np.array(values, dtype=float))
+        if not self.active:
+            return x.reshape(shape)
+        w = self.weights()[:, None]
+        n, G = self.members.shape
+        for _ in range(self.n_iterations):
+            received = self._exchange(x)                                              # (P, r)
+            own = x.reshape(n * G, -1)[self.slot]
+            x = x + (self._sum_into @ (w * (received - own))).reshape(x.shape)
+        return x.reshape(shape)
+
+    def maximum(self, values: npt.ArrayLike) -> np.ndarray:
+        """Running maximum of `values` over each agent's group (exact after diameter rounds)."""
+        x, shape = self._as_blocks(np.array(values))
+        if not self.active:
+            return x.reshape(shape)
+        n, G = self.members.shape
+        starts = np.r_[0, np.flatnonzero(np.diff(self.slot)) + 1]
+        receivers = self.slot[starts]
+        for _ in range(self.n_iterations):
+            received = self._exchange(x)
+            flat = x.reshape(n * G, -1)
+            flat[receivers] = np.maximum(flat[receivers], np.maximum.reduceat(received, starts, axis=0))
+            x = flat.reshape(x.shape)
+        return x.reshape(shape)
+
+    def sum(self, values: npt.ArrayLike) -> FloatArray:
+        """Σ of `values` over each agent's group component (leader-ratio consensus, module doc)."""
+        x, shape = self._as_blocks(np.asarray(values, dtype=float))
+        if not self.active:
+            return x.reshape(shape).copy()
+        if self._leader is None:
+            ids = np.where(self.members, self.network.agents[:, None], np.iinfo(np.int64).min)
+            self._leader = self.maximum(ids[..., None])[..., 0]
+        is_leader = (self.members & (self._leader == self.network.agents[:, None])).astype(float)
+        averaged = self.average(np.concatenate([x, is_leader[..., None]], axis=2))
+        share = averaged[..., -1]
+        ok = (share > 1e-9) & self.members
+        total = np.where(ok[..., None], averaged[..., :-1] / np.where(ok, share, 1.0)[..., None], x)
+        return total.reshape(shape)
+
+    def _exchange(self, x: np.ndarray) -> np.ndarray:
+        """One round over the active pairs: (n, G, r) → (P, r) received."""
+        return self.network.exchange_blocks(x, self.edges, self.blocks, self._n_messages)
+
+    def _as_blocks(self, values: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
+        n, G = self.members.shape
+        if self.grouped and values.shape[:2] != (n, G):
+            raise InvalidInputError(
+                f"consensus values must have shape ({n}, {G}, ...) (agents, groups), got {values.shape}"
+            )
+        if not self.grouped and values.shape[:1] != (n,):
+            raise InvalidInputError(f"consensus values must have one row per agent ({n}), got {values.shape}")
+        rest = int(np.prod(values.shape[2 if self.grouped else 1:], dtype=np.int64))
+        return values.reshape(n, G, rest), values.shape
 
 
-def metropolis_weights(network: Network, members: _Mask | None = None) -> FloatArray:
-    """(E, F) Metropolis–Hastings weight of each directed edge in each group (0 off-group).
-
-    One round of degree exchange (counted).
-    """
-    members = np.ones((network.n_agents, 1), dtype=bool) if members is None else np.asarray(members, bool)
-    on = members[network.target] & members[network.source]
-    degree = network.gather_sum(on.astype(float))                      # (n, F) within each group
-    received = network.exchange(degree, sent=on)                       # d_j arrives along j → i
-    return np.where(on, 1.0 / (1.0 + np.maximum(degree[network.target], received)), 0.0)
+def average_consensus(network: Network, values: npt.ArrayLike, n_iterations: int,
+                      members: _Mask | None = None) -> FloatArray:
+    """Each agent's estimate of the mean of `values` over its (group's) component after N_cons rounds."""
+    return GroupConsensus(network, members, n_iterations).average(values)
 
 
-def average_consensus(
-    network: Network, values: npt.ArrayLike, n_iterations: int, members: _Mask | None = None
-) -> FloatArray:
-    """Each agent's estimate of the mean of `values` over its (group's) component after N_cons rounds.
-
-    values : (n, ...) or, with `members` (n, F), (n, F, ...); non-members keep their value.
-    """
-    _check_iterations(n_iterations)
-    values = np.array(values, dtype=float, copy=True)
-    if network.n_edges == 0 or n_iterations == 0 or values.size == 0:
-        return values
-    x, members, on = _groups(network, values, members)
-    if not on.any():
-        return values
-    w = metropolis_weights(network, members)[..., None]
-    for _ in range(n_iterations):
-        received = network.exchange(x, sent=on)
-        x = x + network.gather_sum(w * (received - x[network.target]))
-    return x.reshape(values.shape)
-
-
-def max_consensus(
-    network: Network, values: npt.ArrayLike, n_iterations: int, members: _Mask | None = None
-) -> np.ndarray:
+def max_consensus(network: Network, values: npt.ArrayLike, n_iterations: int,
+                  members: _Mask | None = None) -> np.ndarray:
     """Each agent's running maximum of `values` over its group after N_cons rounds (exact ≥ diameter)."""
-    _check_iterations(n_iterations)
-    values = np.array(values, copy=True)
-    if network.n_edges == 0 or n_iterations == 0 or values.size == 0:
-        return values
-    x, members, on = _groups(network, values, members)
-    low = np.iinfo(x.dtype).min if np.issubdtype(x.dtype, np.integer) else -np.inf
-    for _ in range(n_iterations):
-        received = np.where(on[..., None], network.exchange(x, sent=on), low)
-        x = network.gather_max(received, x)
-    return x.reshape(values.shape)
+    return GroupConsensus(network, members, n_iterations).maximum(values)
 
 
-def network_sum(
-    network: Network, values: npt.ArrayLike, n_iterations: int, members: _Mask | None = None
-) -> FloatArray:
-    """Each agent's estimate of Σ values over its connected group (leader-ratio consensus).
-
-    values : (n, ...) or, with `members` (n, F), (n, F, ...). Entries of non-members
-    are returned unchanged.
-    """
-    _check_iterations(n_iterations)
-    values = np.asarray(values, dtype=float)
-    n = network.n_agents
-    if n == 0 or network.n_edges == 0 or n_iterations == 0 or values.size == 0:
-        return values.copy()  # an agent alone (or no rounds): its own value is all it knows
-    x, members, _ = _groups(network, values, members)
-    G = members.shape[1]
-    ids = np.where(members, network.agents[:, None], np.iinfo(np.int64).min)
-    leader = max_consensus(network, ids, n_iterations, members)            # (n, G)
-    is_leader = (members & (leader == network.agents[:, None])).astype(float)
-    joint = np.concatenate([x, is_leader[..., None]], axis=2)              # (n, G, rest + 1)
-    averaged = average_consensus(network, joint, n_iterations, members)
-    share = averaged[..., -1]
-    ok = share > 1e-9
-    total = np.where(ok[..., None], averaged[..., :-1] / np.where(ok, share, 1.0)[..., None], x)
-    total = np.where(members[..., None], total, x)
-    return total.reshape(values.shape) if G else values.copy()
+def network_sum(network: Network, values: npt.ArrayLike, n_iterations: int,
+                members: _Mask | None = None) -> FloatArray:
+    """Each agent's estimate of Σ values over its connected group; non-members keep their entry."""
+    return GroupConsensus(network, members, n_iterations).sum(values)
 
 
 def _check_iterations(n_iterations: int) -> None:

@@ -24,7 +24,7 @@ import numpy.typing as npt
 from scipy import sparse
 
 from cooploc.errors import InvalidInputError
-from cooploc.types import FloatArray, IntArray
+from cooploc.types import IntArray
 
 __all__ = ["Network"]
 
@@ -69,14 +69,11 @@ class Network:
         """Number of directed edges (twice the number of links)."""
         return self.target.size
 
-    def exchange(self, values: npt.ArrayLike, sent: npt.NDArray[np.bool_] | None = None) -> np.ndarray:
+    def exchange(self, values: npt.ArrayLike) -> np.ndarray:
         """One synchronous round: every agent sends its row of `values` to each neighbour.
 
         Returns (E, ...) what arrives along each directed edge: row e is
-        `values[source[e]]`, received by agent `target[e]`. `sent` (E, F), optional,
-        says which of the F blocks of a row (values (n, F, ...)) actually travel on each
-        edge — e.g. only the features both ends sense; only those are counted, and an
-        edge that carries none is no message.
+        `values[source[e]]`, received by agent `target[e]`.
         """
         values = np.asarray(values)
         if values.shape[:1] != (self.n_agents,):
@@ -84,31 +81,27 @@ class Network:
                 f"Network.exchange: values must have one row per agent ({self.n_agents}), "
                 f"got shape {values.shape}"
             )
-        if sent is None:
-            self.messages += self.n_edges
-            self.bytes += self.n_edges * int(np.prod(values.shape[1:], dtype=np.int64)) * 8
-        else:
-            per_block = int(np.prod(values.shape[2:], dtype=np.int64))
-            blocks = np.asarray(sent).sum(axis=1)
-            self.messages += int((blocks > 0).sum())
-            self.bytes += int(blocks.sum()) * per_block * 8
+        self.messages += self.n_edges
+        self.bytes += self.n_edges * int(np.prod(values.shape[1:], dtype=np.int64)) * 8
         return values[self.source]
 
-    def gather_sum(self, per_edge: FloatArray) -> FloatArray:
-        """Σ over received messages for every agent: (E, ...) → (n, ...) (local arithmetic)."""
-        flat = per_edge.reshape(self.n_edges, -1)
-        summed = self._incidence() @ flat
-        return np.asarray(summed).reshape((self.n_agents, *per_edge.shape[1:]))
+    def exchange_blocks(self, values: np.ndarray, edges: IntArray, blocks: IntArray,
+                        n_messages: int | None = None) -> np.ndarray:
+        """One round in which edge `edges[p]` carries only block `blocks[p]` of its source's row.
 
-    def gather_max(self, per_edge: np.ndarray, own: np.ndarray) -> np.ndarray:
-        """max(own, max over received messages) for every agent (local arithmetic)."""
-        out = np.array(own, copy=True)
-        if self.n_edges:
-            starts = np.r_[0, np.cumsum(self.degree)[:-1]]
-            has = self.degree > 0
-            reduced = np.maximum.reduceat(per_edge, starts[has], axis=0)
-            out[has] = np.maximum(out[has], reduced)
-        return out
+        values (n, B, ...) → (P, ...) with row p = values[source[edges[p]], blocks[p]], as
+        received by agent target[edges[p]]. Counts one message per edge used and the
+        bytes of the blocks carried (`n_messages`: the number of distinct `edges`, if known).
+        """
+        values = np.asarray(values)
+        if values.shape[:1] != (self.n_agents,):
+            raise InvalidInputError(
+                f"Network.exchange_blocks: values must have one row per agent ({self.n_agents}), "
+                f"got shape {values.shape}"
+            )
+        self.messages += int(np.unique(edges).size) if n_messages is None else int(n_messages)
+        self.bytes += int(edges.size) * int(np.prod(values.shape[2:], dtype=np.int64)) * 8
+        return values[self.source[edges], blocks]
 
     def components(self) -> IntArray:
         """(n,) label of the connected component of each agent (for tests and reports)."""
@@ -119,11 +112,3 @@ class Network:
 
     def counters(self) -> dict[str, int]:
         return {"messages": int(self.messages), "bytes": int(self.bytes)}
-
-    def _incidence(self) -> sparse.csr_matrix:
-        if not hasattr(self, "_incidence_matrix"):
-            self._incidence_matrix = sparse.csr_matrix(
-                (np.ones(self.n_edges), (self.target, np.arange(self.n_edges))),
-                shape=(self.n_agents, self.n_edges),
-            )
-        return self._incidence_matrix

@@ -21,7 +21,7 @@ its neighbours send it through a `Network` (`cooploc.network`):
    - (19) m_{i→k}: i's extrinsic belief B = b_i / m_{k→i} pushed through x_k = x_i + z:
      Λ = (R + B⁻¹)⁻¹, mean z + B⁻¹ b.
    - (20) b_k = b_k^(0) Π_i m_{i→k}: the sum over vehicles Σ_i (Λ_{i→k}, η_{i→k}) is
-     computed by every agent with `consensus.network_sum` (average consensus with
+     computed by every agent with `consensus.GroupConsensus.sum` (average consensus with
      Metropolis weights, N_cons rounds, leader-ratio normalisation), then added to its
      own b_k^(0).
    - (21) m_{k→i}: the feature's extrinsic belief A = b_k / m_{i→k} pushed through
@@ -54,7 +54,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from cooploc.consensus import max_consensus, network_sum
+from cooploc.consensus import GroupConsensus
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import AssociationTruth
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
@@ -233,6 +233,8 @@ class ICP:
         z, R = v2f.z[rows], v2f.cov[rows]
         senses = np.zeros((n, F), dtype=bool)       # the consensus group of each feature
         senses[agent, slot] = True
+        feature_groups = GroupConsensus(network, senses, p.consensus_iterations)
+        everyone = GroupConsensus(network, None, p.consensus_iterations)
         m = rows.size
         to_vehicle = (np.zeros((m, d, d)), np.zeros((m, d)))            # m_{k→i}, uniform at n = 0
         Lam_v, eta_v = Lam0, eta0
@@ -250,7 +252,7 @@ class ICP:
             np.add.at(local_Lam, (agent, slot), to_feature[0])
             np.add.at(local_eta, (agent, slot), to_feature[1])
             payload = np.concatenate([local_Lam.reshape(n, F, -1), local_eta], axis=2)
-            total = network_sum(network, payload, p.consensus_iterations, members=senses)
+            total = feature_groups.sum(payload)
             feat_Lam = feat_Lam0 + total[..., : d * d].reshape(n, F, d, d)
             feat_eta = feat_eta0 + total[..., d * d:]
             # (21) feature → vehicle, from the agent's copy of the feature's extrinsic belief
@@ -266,7 +268,7 @@ class ICP:
             now_f = self._feature_means(feat_Lam, feat_eta)
             moved = np.maximum(self._moved(now_v, last_v), self._moved(now_f, last_f).max(axis=1, initial=0))
             last_v, last_f = now_v, now_f
-            still = max_consensus(network, moved.astype(np.int64), p.consensus_iterations)
+            still = everyone.maximum(moved.astype(np.int64))
             if not still.any():
                 break
         self.features.Lam, self.features.eta = symmetrize(feat_Lam), feat_eta
