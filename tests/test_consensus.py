@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cooploc.consensus import GroupConsensus, average_consensus, max_consensus, network_sum
+from cooploc.consensus import GroupConsensus, average_consensus, flood, max_consensus, network_sum
 from cooploc.errors import InvalidInputError
 from cooploc.network import Network
 
@@ -163,3 +163,29 @@ def test_group_messages_count_only_shared_blocks() -> None:
 def test_bad_iterations() -> None:
     with pytest.raises(InvalidInputError, match="n_iterations"):
         average_consensus(Network([0], []), [[1.0]], -1)
+
+
+def test_flood_reaches_everyone_within_the_hop_count() -> None:
+    net = Network(np.arange(6), _path(6))                  # 0-1-2-3-4-5
+    have = np.zeros((6, 2), dtype=bool)
+    have[0, 0] = True                                      # block 0 from agent 0
+    have[[2, 5], 1] = True                                 # block 1 from two holders
+    payload = np.zeros((6, 2, 3))
+    payload[0, 0] = 1.0
+    payload[2, 1] = 2.0
+    payload[5, 1] = 5.0
+    got, data, _ = flood(net, have, payload, 3, priority=np.arange(6)[:, None] * np.ones((1, 2), int))
+    assert got[:, 0].tolist() == [True, True, True, True, False, False]   # 3 hops from agent 0
+    assert got[:, 1].all()
+    # the higher priority (agent 5's copy) overrides as it travels: 3 hops reach agent 2
+    assert data[:, 1, 0].tolist() == [2.0, 2.0, 5.0, 5.0, 5.0, 5.0]
+    got, data, _ = flood(net, have, payload, 10, priority=np.arange(6)[:, None] * np.ones((1, 2), int))
+    assert got.all() and (data[:, 0, 0] == 1.0).all() and (data[:, 1, 0] == 5.0).all()
+
+
+def test_flood_counts_each_forward_once() -> None:
+    net = Network(np.arange(3), _path(3))
+    have = np.array([[True], [False], [False]])
+    flood(net, have, np.ones((3, 1, 4)), 5, priority=np.zeros((3, 1), int))
+    # 0 → 1 (round 1), 1 → 0 and 1 → 2 (round 2), 2 → 1 (round 3): 4 block-messages of 4 floats
+    assert net.counters() == {"messages": 4, "bytes": 4 * 4 * 8}

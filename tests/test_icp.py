@@ -18,7 +18,8 @@ import pytest
 from scipy import stats
 
 from cooploc.estimators import get_estimator, make_estimator
-from cooploc.estimators.icp import relative_message
+from cooploc.estimators.icp import _group_births, relative_message
+from cooploc.experiment import ExperimentConfig, run_experiment, summarize
 from cooploc.gaussian import Gaussians, to_information
 from cooploc.types import Frame, Recording
 from helpers import assert_valid_estimate, position_errors, preset_recording, run_estimator, with_traffic
@@ -153,3 +154,68 @@ def test_traffic_and_paper_variant_stay_finite() -> None:
     for params in (None, get_estimator("icp").Params(feedback=True, feature_memory=True)):
         for estimate, frame in zip(run_estimator("icp", traffic, params=params), traffic.frames, strict=True):
             assert_valid_estimate(estimate, frame, traffic)
+
+
+# ----------------------------------------------------------------------------
+# data association: icp-da-lc, icp-da-pf
+# ----------------------------------------------------------------------------
+
+
+def test_vehicles_agree_on_feature_ids() -> None:
+    rec = preset_recording("brambilla-road", [6, 0], {"feature_spacing": 6.0})
+    for estimate, frame in zip(run_estimator("icp-da-lc", rec), rec.frames, strict=True):
+        v2f = frame.batches["v2f"]
+        track = estimate.info["v2f_track"]
+        by_vehicle = [set(track[v2f.sensor == v].tolist()) for v in frame.vehicles]
+        for rows_of, tracks_of in zip(frame.vehicles, by_vehicle, strict=True):
+            assert len(tracks_of) == int((v2f.sensor == rows_of).sum())   # distinct tracks per vehicle
+        if len(v2f) == 4:                                                  # both see both features
+            assert by_vehicle[0] == by_vehicle[1]                          # … and name them alike
+
+
+def test_group_births_one_row_per_vehicle() -> None:
+    ids = np.array([10, 11, 20, 30])
+    agents = np.array([1, 1, 2, 3])
+    g = np.zeros((4, 4))
+    g[1, 0] = 0.5                       # 10 and 11 (same vehicle) both close to 20 and 30
+    P = np.repeat(np.eye(4)[None], 4, 0)
+    names = _group_births(ids, agents, g, P)
+    assert names[0] != names[1]         # one vehicle's two rows never merge
+    assert names[2] == names[3] and names[2] in (10, 11)
+    far = g.copy()
+    far[3, 0] = 100.0
+    assert _group_births(ids, agents, far, P)[3] == 30   # outside the gate: its own feature
+
+
+@pytest.mark.slow
+def test_well_separated_features_lose_nothing_to_association() -> None:
+    config = ExperimentConfig.build("brambilla-road", ["icp", "icp-da-lc"], runs=6, seed=3,
+                                    scenario_overrides={"feature_spacing": "6"}, backend="serial")
+    summary = summarize(run_experiment(config))["estimators"]
+    # our association uses each vehicle's GNSS-only belief (no feedback, module doc of icp):
+    # at d_f = 6 m a few pairings still swap (measured 0.956 over these runs)
+    assert summary["icp-da-lc"]["association_accuracy"] > 0.9
+    assert summary["icp-da-lc"]["discarded_share"] is not None
+    # paper §V-A: at d_f = 6 m the ICP-DA methods reach ICP with known association
+    np.testing.assert_allclose(summary["icp-da-lc"]["vehicle_rmse_all"], summary["icp"]["vehicle_rmse_all"],
+                               rtol=0.05)
+
+
+def test_particle_version_matches_the_exact_snapshot() -> None:
+    rec = preset_recording("brambilla-road", [3, 1], {"n_features": 1})
+    k = _first_full_step(rec)
+    params = get_estimator("icp-da-pf").Params(n_particles=1500, max_iterations=20)
+    pf = make_estimator("icp-da-pf", rec.setup, params, np.random.default_rng(0))
+    gnss = make_estimator("gnss-kf", rec.setup, None, np.random.default_rng(0))
+    for frame in rec.frames[:k]:
+        pf.step(frame)
+        gnss.step(frame)
+    prior = gnss.step(rec.frames[k]).vehicles
+    estimate = pf.step(rec.frames[k])
+    mean, _ = _dense_posterior(Gaussians(prior.mean, prior.cov), rec.frames[k], rec.truth.origin[k]["v2f"])
+    # Monte Carlo error and the Silverman-widened kernel (≈ 0.2 of the prior spread):
+    # within 0.35 of the prior standard deviation (measured 0.22–0.26 on this case)
+    sd = np.sqrt(prior.cov[:, 0, 0])
+    assert (np.linalg.norm(estimate.vehicles.mean[:, :2] - mean[:, :2], axis=1) < 0.35 * sd).all()
+    assert (np.trace(estimate.vehicles.cov[:, :2, :2], axis1=1, axis2=2)
+            < np.trace(prior.cov[:, :2, :2], axis1=1, axis2=2)).all()

@@ -31,6 +31,13 @@ converged, with no agent knowing how many members there are. Before the leader's
 indicator reaches an agent the ratio is undefined; the agent then uses its own
 value, the only sum it can vouch for.
 
+`flood` spreads blocks of data (a feature's belief, a new feature's first detection)
+from the agents that hold them to every agent within N rounds — max consensus on
+(priority, block): an agent takes a received copy when it has none or the copy's
+`priority` (e.g. its originator's id) is higher than its own, and forwards a block in
+the round after its copy changed. With enough rounds every agent of a component ends
+with the copy of highest priority, whatever the order of processing.
+
 `GroupConsensus` is built once per step and membership: it finds the active (link,
 group) pairs, learns the Metropolis weights (one round) and, for sums, the leader of
 every group (max consensus, once), then serves any number of average / max / sum
@@ -49,7 +56,7 @@ from cooploc.errors import InvalidInputError
 from cooploc.network import Network
 from cooploc.types import FloatArray
 
-__all__ = ["GroupConsensus", "average_consensus", "max_consensus", "network_sum"]
+__all__ = ["GroupConsensus", "average_consensus", "flood", "max_consensus", "network_sum"]
 
 _Mask = npt.NDArray[np.bool_]
 
@@ -175,6 +182,48 @@ def network_sum(network: Network, values: npt.ArrayLike, n_iterations: int,
                 members: _Mask | None = None) -> FloatArray:
     """Each agent's estimate of Σ values over its connected group; non-members keep their entry."""
     return GroupConsensus(network, members, n_iterations).sum(values)
+
+
+def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
+          priority: npt.ArrayLike) -> tuple[_Mask, np.ndarray, np.ndarray]:
+    """Spread blocks to the agents that lack them (module doc).
+
+    Parameters
+    ----------
+    have : (n, G) which agents hold block g; payload : (n, G, ...) their copies.
+    n_rounds : forwarding rounds (blocks travel at most this many hops).
+    priority : (n, G) integers ranking the copies; higher wins where copies meet.
+
+    Returns (have, payload, priority) after flooding.
+    """
+    _check_iterations(n_rounds)
+    have = np.array(have, dtype=bool, copy=True)
+    payload = np.array(payload, copy=True)
+    priority = np.array(np.broadcast_to(priority, have.shape), dtype=np.int64, copy=True)
+    fresh = have.copy()                                         # blocks to forward this round
+    for _ in range(n_rounds if network.n_edges else 0):
+        edges, blocks = np.nonzero(fresh[network.source])        # every fresh block to every neighbour
+        if edges.size == 0:
+            break
+        received = network.exchange_blocks(payload, edges, blocks)
+        target = network.target[edges]
+        rank = priority[network.source[edges], blocks]
+        wanted = ~have[target, blocks] | (rank > priority[target, blocks])
+        edges, blocks, target, received, rank = (edges[wanted], blocks[wanted], target[wanted],
+                                                 received[wanted], rank[wanted])
+        # per (target, block) keep the copy with the highest priority
+        order = np.lexsort((-rank, blocks, target))
+        first = np.ones(order.size, dtype=bool)
+        key = target[order] * have.shape[1] + blocks[order]
+        first[1:] = key[1:] != key[:-1]
+        pick = order[first]
+        fresh = np.zeros_like(have)
+        t, b = target[pick], blocks[pick]
+        have[t, b] = True
+        fresh[t, b] = True
+        payload[t, b] = received[pick]
+        priority[t, b] = rank[pick]
+    return have, payload, priority
 
 
 def _check_iterations(n_iterations: int) -> None:

@@ -15,14 +15,14 @@ import numpy as np
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import AssociationTruth, Estimator
 from cooploc.estimators.gnss_kf import GnssKF
-from cooploc.estimators.icp import ICP
+from cooploc.estimators.icp import ICP, ICPDALC, ICPDAPF
 from cooploc.estimators.oracle_kf import OracleKF
 from cooploc.params import Params
 from cooploc.types import Setup, Truth
 
 __all__ = ["Estimator", "estimators", "get_estimator", "make_estimator"]
 
-_REGISTRY: dict[str, type] = {cls.name: cls for cls in (GnssKF, OracleKF, ICP)}
+_REGISTRY: dict[str, type] = {cls.name: cls for cls in (GnssKF, OracleKF, ICP, ICPDALC, ICPDAPF)}
 
 
 def estimators() -> dict[str, type]:
