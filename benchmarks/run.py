@@ -40,18 +40,18 @@ def _recording(preset_name: str, seed: int, overrides: dict):
     return preset.generate(np.random.default_rng(seed), params)
 
 
-def time_estimator(name: str, recording, repeats: int) -> dict:
+def time_estimator(name: str, recording, repeats: int, params=None) -> dict:
     """Best-of-`repeats` time inside `step` over the recording, and peak memory."""
     best = np.inf
     for r in range(repeats):
-        est = make_estimator(name, recording.setup, None, np.random.default_rng(r), recording.truth)
+        est = make_estimator(name, recording.setup, params, np.random.default_rng(r), recording.truth)
         spent = 0.0
         for frame in recording.frames:
             start = time.perf_counter()
             est.step(frame)
             spent += time.perf_counter() - start
         best = min(best, spent)
-    est = make_estimator(name, recording.setup, None, np.random.default_rng(0), recording.truth)
+    est = make_estimator(name, recording.setup, params, np.random.default_rng(0), recording.truth)
     tracemalloc.start()
     for frame in recording.frames:
         est.step(frame)

@@ -66,3 +66,20 @@ def test_evaluate_scores_vehicles_and_features_by_id():
     np.testing.assert_allclose(table.err_pos[table.kind == FEATURE], 0.0, atol=1e-12)
     assert np.isnan(table.err_heading).all()
     assert len(table) == 3 * (2 + 3)
+
+
+def test_track_identities_take_the_majority_origin():
+    from cooploc.metrics import relabel, track_identities
+    from cooploc.types import StateSet
+
+    tracks = [np.array([7, 7, 9, -1]), np.array([7, 9, 9])]
+    origins = [np.array([1000, 1001, 1001, 1000]), np.array([1000, 1001, 1000])]
+    # track 7: 1000 twice, 1001 once; track 9: 1001 twice, 1000 once; −1 is not a track
+    assert track_identities(tracks, origins) == {7: 1000, 9: 1001}
+    assert track_identities([np.array([5, 5])], [np.array([3, 2])]) == {5: 2}   # tie: smaller id
+    states = StateSet(np.array([9, 7, 8]), np.arange(12.0).reshape(3, 4), np.repeat(np.eye(4)[None], 3, 0))
+    named = relabel(states, {7: 1000, 9: 1001})
+    assert named.ids.tolist() == [1001, 1000]                 # unmapped track 8 dropped
+    np.testing.assert_array_equal(named.mean, states.mean[:2])
+    twice = relabel(states, {7: 1000, 9: 1000, 8: 1000})
+    assert twice.ids.tolist() == [1000] and twice.mean[0, 0] == 0.0   # first track kept

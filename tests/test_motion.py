@@ -11,6 +11,7 @@ from cooploc.motion import (
     ConstantTurn,
     ConstantVelocity,
     CVAccelerationInput,
+    CVVelocityNoise,
     motion_from_dict,
     sample_gaussian,
     simulate,
@@ -188,7 +189,8 @@ def test_sample_gaussian_batched_and_singular(rng: np.random.Generator) -> None:
 
 
 @pytest.mark.parametrize("model", [ConstantVelocity(0.1), ConstantTurn(0.4, 0.2),
-                                   CVAccelerationInput(1.0, 0.2)], ids=lambda m: m.name)
+                                   CVAccelerationInput(1.0, 0.2), CVVelocityNoise(0.3, 0.1)],
+                         ids=lambda m: m.name)
 def test_simulate_backward_satisfies_forward_model(model, rng: np.random.Generator) -> None:
     n, T, dt = 4000, 6, 0.5
     x_last = 3.0 * rng.standard_normal((n, 4)) + np.array([0.0, 0.0, 5.0, 0.0])
@@ -234,7 +236,8 @@ def test_simulate_forward_with_controls(rng: np.random.Generator) -> None:
 
 
 @pytest.mark.parametrize("model", [ConstantVelocity(0.1), ConstantTurn(0.4, 0.2),
-                                   CVAccelerationInput(1.0, 0.2)], ids=lambda m: m.name)
+                                   CVAccelerationInput(1.0, 0.2), CVVelocityNoise(0.3, 0.1)],
+                         ids=lambda m: m.name)
 def test_motion_from_dict_round_trip(model) -> None:
     again = motion_from_dict(model.to_dict())
     assert again == model

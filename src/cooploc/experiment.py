@@ -40,7 +40,9 @@ from cooploc.metrics import (
     ErrorTable,
     evaluate,
     per_entity_rmse,
+    relabel,
     rmse,
+    track_identities,
 )
 from cooploc.params import Params
 from cooploc.scenarios import get_preset
@@ -168,6 +170,7 @@ class RunResult:
     step_seconds: dict[str, float]
     n_steps: dict[str, int]
     association: dict[str, tuple[int, int]] = field(default_factory=dict)
+    discarded: dict[str, tuple[int, int]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -209,27 +212,45 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
     names = [e.name for e in config.estimators]
     scenario_rng, estimator_rngs = run_generators(config.seed, run, names)
     recording = preset.generate(scenario_rng, config.scenario_params)
-    errors, seconds, steps, association = {}, {}, {}, {}
+    errors, seconds, steps, association, discarded = {}, {}, {}, {}, {}
     for spec in config.estimators:
         estimator = make_estimator(spec.name, recording.setup, spec.params,
                                    estimator_rngs[spec.name], recording.truth)
         estimates, spent = [], 0.0
-        correct = total = 0
+        correct = total = dropped = rows = 0
+        tracks, track_origins = [], []
         for frame in recording.frames:
             start = time.perf_counter()
             estimate = estimator.step(frame)
             spent += time.perf_counter() - start
             estimates.append(estimate)
+            true = recording.truth.origin[frame.k].get("v2f", np.zeros(0, np.int64))
             decided = estimate.info.get("v2f_association")
             if decided is not None:  # decided origin per V2F row, for association accuracy
-                true = recording.truth.origin[frame.k].get("v2f", np.zeros(0, np.int64))
                 correct += int(np.sum(np.asarray(decided) == true))
                 total += int(true.size)
+            track = estimate.info.get("v2f_track")
+            if track is not None:    # the estimator's own track id per V2F row (−1: none)
+                tracks.append(np.asarray(track))
+                track_origins.append(true)
+                dropped += int(estimate.info.get("v2f_discarded", 0))
+                rows += int(true.size)
+        if tracks:
+            # score self-named feature tracks as the true feature most of their rows came from
+            identity = track_identities(tracks, track_origins)
+            for track, true in zip(tracks, track_origins, strict=True):
+                paired = track >= 0
+                named = np.array([identity.get(int(t), -2) for t in track[paired]], dtype=np.int64)
+                correct += int(np.sum(named == true[paired]))
+                total += int(paired.sum())
+            estimates = [dataclasses.replace(e, features=relabel(e.features, identity))
+                         if e.features is not None else e for e in estimates]
+            discarded[spec.name] = (dropped, rows)
         errors[spec.name] = evaluate(recording, estimates)
         seconds[spec.name], steps[spec.name] = spent, len(recording.frames)
         if total:
             association[spec.name] = (correct, total)
-    return RunResult(run, errors, seconds, steps, association)
+    return RunResult(run, errors, seconds, steps, association, discarded)
 
 
 # ----------------------------------------------------------------------------
@@ -410,6 +431,7 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
         seconds = sum(r.step_seconds[spec.name] for r in result.runs)
         steps = sum(r.n_steps[spec.name] for r in result.runs)
         assoc = [r.association[spec.name] for r in result.runs if spec.name in r.association]
+        dropped = [r.discarded[spec.name] for r in result.runs if spec.name in r.discarded]
         heading = table.err_heading[vehicles]
         out["estimators"][spec.name] = {
             "params": spec.params.to_dict(),
@@ -422,6 +444,8 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
             else None,
             "association_accuracy": (sum(c for c, _ in assoc) / sum(t for _, t in assoc))
             if assoc else None,
+            "discarded_share": (sum(d for d, _ in dropped) / sum(t for _, t in dropped))
+            if dropped and sum(t for _, t in dropped) else None,
             "steps_per_second": steps / seconds if seconds > 0 else None,
         }
     return out

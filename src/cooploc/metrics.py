@@ -8,6 +8,10 @@
   runs and entities is pooled; `per_entity_rmse` pools steps (and runs) per id.
 - `ecdf`: the empirical CDF (sorted values and probabilities i/n).
 - `association_accuracy`: share of rows whose decided origin equals the true one.
+- `track_identities` / `relabel`: estimators that start their own feature tracks
+  (ids of their own) are scored by giving each track the true feature most of its
+  rows came from over the run; association accuracy is then the share of paired rows
+  whose origin is their track's feature.
 - `nees`: normalised estimation error squared (x − x̂)ᵀ P⁻¹ (x − x̂), for consistency
   checks against χ² bounds.
 
@@ -17,7 +21,7 @@ features are matched by id.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,7 +46,9 @@ __all__ = [
     "evaluate",
     "nees",
     "per_entity_rmse",
+    "relabel",
     "rmse",
+    "track_identities",
     "wrap_angle",
 ]
 
@@ -82,6 +88,35 @@ def association_accuracy(decided: IntArray, true_origin: IntArray) -> float:
     """Correct decisions / all decisions (decided origin ids against the true ones)."""
     decided, true_origin = np.asarray(decided), np.asarray(true_origin)
     return float(np.mean(decided == true_origin)) if decided.size else float("nan")
+
+
+def track_identities(tracks: Sequence[IntArray], origins: Sequence[IntArray]) -> dict[int, int]:
+    """The true feature each estimated track stands for: the most frequent true origin of
+    the rows the estimator assigned to it over the whole run (ties: the smaller id).
+
+    `tracks[k]` (M_k,) is the track id an estimator gave each V2F row of step k (−1:
+    none); `origins[k]` the rows' true origins (−1: clutter). Estimators that name
+    their own features (new tracks, not the scenario's ids) are scored through this.
+    """
+    track = np.concatenate([np.asarray(t, np.int64) for t in tracks]) if tracks else np.zeros(0, np.int64)
+    origin = np.concatenate([np.asarray(o, np.int64) for o in origins]) if origins else np.zeros(0, np.int64)
+    used = track >= 0
+    pairs, counts = np.unique(np.stack([track[used], origin[used]], axis=1), axis=0, return_counts=True)
+    order = np.lexsort((pairs[:, 1], -counts, pairs[:, 0]))     # per track: most rows, then smaller id
+    pairs = pairs[order]
+    first = np.ones(len(pairs), dtype=bool)
+    first[1:] = pairs[1:, 0] != pairs[:-1, 0]
+    return {int(t): int(o) for t, o in pairs[first]}
+
+
+def relabel(states: StateSet, identity: Mapping[int, int]) -> StateSet:
+    """Estimated entities renamed by `identity` (track → true id); unmapped or clutter
+    tracks are dropped, and of several tracks for one true id the first is kept."""
+    new = np.array([identity.get(int(i), -1) for i in states.ids], dtype=np.int64)
+    keep = new >= 0
+    _, first = np.unique(new[keep], return_index=True)
+    rows = np.flatnonzero(keep)[np.sort(first)]
+    return StateSet(new[rows], states.mean[rows], states.cov[rows])
 
 
 def nees(estimate: StateSet, true_states: FloatArray) -> FloatArray:

@@ -13,6 +13,10 @@ al. 2018, eq. (28): A = [[1, ΔT], [0, 1]] ⊗ I_2.
   al. 2020, eq. (1): x_k = F x_{k-1} + B (u_k + n_k) with B = [ΔT²/2; ΔT] ⊗ I_2 and
   n_k ~ N(0, R(ψ) diag(σ²_a,∥, σ²_a,⊥) R(ψ)ᵀ), the along/cross-track axes turned to
   each vehicle's driving direction ψ = atan2(v_y, v_x). Q is then rank 2 (singular).
+- `CVVelocityNoise` — CV whose velocity takes random-walk steps turned to the direction
+  of motion, Brambilla 2020 §V-B for features (pedestrians on sidewalks):
+  x_k = F x_{k-1} + G n_k, G = [ΔT; 1] ⊗ I_2, n_k ~ N(0, R(ψ) diag(σ²_v,∥, σ²_v,⊥) R(ψ)ᵀ).
+  With σ = 0 it is the static (or constant-velocity) feature of §V-A.
 
 Simulation helpers sample forward (`simulate`) and backward in time
 (`simulate_backward`: x_{k-1} = F⁻¹(x_k − w_k), so the forward relation holds exactly
@@ -34,6 +38,7 @@ from cooploc.types import FloatArray
 
 __all__ = [
     "CVAccelerationInput",
+    "CVVelocityNoise",
     "ConstantTurn",
     "ConstantVelocity",
     "MotionModel",
@@ -194,17 +199,56 @@ class CVAccelerationInput(_Serialisable):
 
     def noise_covariance(self, dt: float, states: FloatArray | None = None) -> FloatArray:
         """Q (n, 4, 4) = B R(ψ) diag(σ∥², σ⊥²) R(ψ)ᵀ Bᵀ; ψ from each state's velocity."""
-        B = self.control_matrix(dt)
-        states = np.zeros((1, 4)) if states is None else np.atleast_2d(states)
-        psi = np.arctan2(states[:, 3], states[:, 2])
-        c, s = np.cos(psi), np.sin(psi)
-        rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)       # (n, 2, 2)
-        accel_cov = rot @ np.diag([self.sigma_along**2, self.sigma_cross**2]) @ rot.transpose(0, 2, 1)
-        Q = B @ accel_cov @ B.T
-        return 0.5 * (Q + Q.transpose(0, 2, 1))
+        return _turned_noise(self.control_matrix(dt), self.sigma_along, self.sigma_cross, states)
 
 
-_MODELS = (ConstantVelocity, ConstantTurn, CVAccelerationInput)
+@dataclass(frozen=True, slots=True)
+class CVVelocityNoise(_Serialisable):
+    """CV with a velocity random walk along/across the direction of motion (Brambilla §V-B).
+
+    Parameters
+    ----------
+    sigma_along, sigma_cross : standard deviations (m/s) of the velocity step per ΔT
+        along and across the direction of motion (paper: v_f/100 and half of that).
+    """
+
+    sigma_along: float
+    sigma_cross: float
+    name: ClassVar[str] = "cv-velocity-noise"
+    dim: ClassVar[int] = 4
+    state_dependent_noise: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        for key in ("sigma_along", "sigma_cross"):
+            value = getattr(self, key)
+            if not np.isfinite(value) or value < 0:
+                raise InvalidInputError(f"CVVelocityNoise.{key} must be >= 0, got {value!r}")
+
+    def transition_matrix(self, dt: float) -> FloatArray:
+        return _cv_blocks(_check_dt(dt))[0]
+
+    def control_matrix(self, dt: float) -> FloatArray | None:
+        return None
+
+    def noise_covariance(self, dt: float, states: FloatArray | None = None) -> FloatArray:
+        """Q (n, 4, 4) = G R(ψ) diag(σ∥², σ⊥²) R(ψ)ᵀ Gᵀ with G = [ΔT; 1] ⊗ I_2."""
+        G = np.kron(np.array([[_check_dt(dt)], [1.0]]), np.eye(2))
+        return _turned_noise(G, self.sigma_along, self.sigma_cross, states)
+
+
+def _turned_noise(G: FloatArray, sigma_along: float, sigma_cross: float,
+                  states: FloatArray | None) -> FloatArray:
+    """G R(ψ) diag(σ∥², σ⊥²) R(ψ)ᵀ Gᵀ per state, ψ = atan2(v_y, v_x) (ψ = 0 when at rest)."""
+    states = np.zeros((1, 4)) if states is None else np.atleast_2d(states)
+    psi = np.arctan2(states[:, 3], states[:, 2])
+    c, s = np.cos(psi), np.sin(psi)
+    rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)       # (n, 2, 2)
+    noise = rot @ np.diag([sigma_along**2, sigma_cross**2]) @ rot.transpose(0, 2, 1)
+    Q = G @ noise @ G.T
+    return 0.5 * (Q + Q.transpose(0, 2, 1))
+
+
+_MODELS = (ConstantVelocity, ConstantTurn, CVAccelerationInput, CVVelocityNoise)
 
 
 def motion_from_dict(data: Mapping[str, Any]) -> MotionModel:

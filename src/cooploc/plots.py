@@ -5,6 +5,7 @@
 - `per_run_rmse_cdf`: empirical CDF of the per-run vehicle RMSE (Fröhle Fig. 3).
 - `sweep_plot`: trajectory-average RMSE against a swept parameter, one panel per
   vehicle (Fröhle Figs. 4–5); the known-association bound is drawn dashed.
+- `line_panels`: any family of curves, one panel per key (paper figures of other shapes).
 - `run_figures` / `run_report`: what `cooploc run` writes beside summary.json.
 """
 
@@ -27,6 +28,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "format_number",
+    "line_panels",
     "per_run_rmse_cdf",
     "rmse_over_time",
     "run_figures",
@@ -35,7 +37,7 @@ __all__ = [
 ]
 
 MAX_PANELS = 6  # more vehicles than this: the first ones are drawn, the pooled RMSE is in the report
-BOUND_ESTIMATORS = ("oracle-kf",)
+BOUND_ESTIMATORS = ("oracle-kf", "icp")
 
 
 def _style(name: str) -> dict[str, Any]:
@@ -116,6 +118,21 @@ def sweep_plot(x: Sequence[float], curves: Mapping[str, Mapping[str, Sequence[fl
         ax.set_ylabel("trajectory-average RMSE [m]")
         if log_x:
             ax.set_xscale("log")
+        ax.grid(alpha=0.3)
+    return _save(fig, axes, path)
+
+
+def line_panels(panels: Mapping[str, Mapping[str, tuple[Sequence[float], Sequence[float]]]], path: Path,
+                title: str, xlabel: str, ylabel: str, markers: bool = True) -> Path:
+    """panels[panel title][curve label] = (x, y); known-association bounds dashed."""
+    fig, axes = _panels(max(len(panels), 1), title)
+    for ax, (name, curves) in zip(axes, panels.items(), strict=False):
+        for label, (x, y) in curves.items():
+            style = _style(label.split(" ")[0])
+            ax.plot(x, y, marker="o" if markers else None, ms=3, lw=1, label=label, **style)
+        ax.set_title(name)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     return _save(fig, axes, path)
 

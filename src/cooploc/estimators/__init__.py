@@ -15,6 +15,7 @@ import numpy as np
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import AssociationTruth, Estimator
 from cooploc.estimators.gnss_kf import GnssKF
+from cooploc.estimators.icp import ICP, ICPDALC, ICPDAPF
 from cooploc.estimators.oracle_kf import OracleKF
 from cooploc.estimators.rsu_bp import RsuBP
 from cooploc.params import Params
@@ -22,7 +23,7 @@ from cooploc.types import Setup, Truth
 
 __all__ = ["Estimator", "estimators", "get_estimator", "make_estimator"]
 
-_REGISTRY: dict[str, type] = {cls.name: cls for cls in (GnssKF, OracleKF, RsuBP)}
+_REGISTRY: dict[str, type] = {cls.name: cls for cls in (GnssKF, OracleKF, RsuBP, ICP, ICPDALC, ICPDAPF)}
 
 
 def estimators() -> dict[str, type]:

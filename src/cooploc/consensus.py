@@ -1,0 +1,231 @@
+"""Average and max consensus over the V2V graph (Brambilla 2020 §IV-C, eq. 29).
+
+Every agent i starts from a value x_i (any shape, the same for all agents) and
+repeats, synchronously with its neighbours N_i, for N_cons rounds:
+
+- average consensus with Metropolis–Hastings weights (Xiao, Boyd & Lall 2005):
+
+      x_i ← x_i + Σ_{j ∈ N_i} w_ij (x_j − x_i),   w_ij = 1 / (1 + max(d_i, d_j)),
+
+  where d_i is i's degree. The weights are symmetric and doubly stochastic, so on a
+  connected graph every x_i converges to the exact mean of the initial values, at a
+  geometric rate set by the second-largest eigenvalue modulus of the weight matrix.
+  On a complete graph one round is exact. Each agent learns its neighbours' degrees
+  in one extra round (counted).
+- max consensus: x_i ← max(x_i, max_{j ∈ N_i} x_j), exact after as many rounds as
+  the graph's diameter.
+
+Groups. A feature is sensed by a few vehicles near it; only they hold terms of the
+BP product (20) for it. Every function takes an optional `members` mask (n, F): value
+block f (values (n, F, ...)) is agreed only among its members, over the links whose
+both ends are members — F consensus problems in one vectorised run. Vehicles that
+sense the same feature are within 2 R_s of each other, so with R_c ≥ 2 R_s (both
+Brambilla scenarios) each group is a complete graph and one round is exact; the
+whole-network graph, by contrast, can be a long chain that N_cons rounds do not mix.
+
+`network_sum` turns the average into the sum Σ_i x_i that the BP products need
+(eqs. 20, 26–29): the members agree on a leader by max consensus on their ids, then
+run average consensus on [x_i, 1{i = leader}] jointly; the ratio of the two averages
+is Σ_i x_i / 1 — the sum over the agent's connected group, exact when both runs have
+converged, with no agent knowing how many members there are. Before the leader's
+indicator reaches an agent the ratio is undefined; the agent then uses its own
+value, the only sum it can vouch for.
+
+`flood` spreads blocks of data (a feature's belief, a new feature's first detection)
+from the agents that hold them to every agent within N rounds — max consensus on
+(priority, block): an agent takes a received copy when it has none or the copy's
+`priority` (e.g. its originator's id) is higher than its own, and forwards a block in
+the round after its copy changed. With enough rounds every agent of a component ends
+with the copy of highest priority, whatever the order of processing.
+
+`GroupConsensus` is built once per step and membership: it finds the active (link,
+group) pairs, learns the Metropolis weights (one round) and, for sums, the leader of
+every group (max consensus, once), then serves any number of average / max / sum
+runs — a BP iteration per run — at O(N_cons P · payload) for P active pairs.
+
+All traffic goes through `Network.exchange_blocks`, so messages and bytes are counted.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+from scipy import sparse
+
+from cooploc.errors import InvalidInputError
+from cooploc.network import Network
+from cooploc.types import FloatArray
+
+__all__ = ["GroupConsensus", "average_consensus", "flood", "max_consensus", "network_sum"]
+
+_Mask = npt.NDArray[np.bool_]
+
+
+class GroupConsensus:
+    """Consensus among the members of each group over the links between members.
+
+    Parameters
+    ----------
+    network : the step's V2V network.
+    members : (n, G) which agents take part in each group; None: one group of all agents.
+    n_iterations : N_cons, rounds per run.
+    """
+
+    def __init__(self, network: Network, members: _Mask | None, n_iterations: int) -> None:
+        _check_iterations(n_iterations)
+        self.network = network
+        self.n_iterations = int(n_iterations)
+        n = network.n_agents
+        self.grouped = members is not None
+        self.members = np.ones((n, 1), dtype=bool) if members is None else np.asarray(members, dtype=bool)
+        if self.members.shape[0] != n:
+            raise InvalidInputError(
+                f"consensus members must have one row per agent ({n}), got shape {self.members.shape}"
+            )
+        G = self.members.shape[1]
+        on = self.members[network.target] & self.members[network.source]          # (E, G)
+        self.edges, self.blocks = np.nonzero(on)                                    # active pairs
+        self.slot = network.target[self.edges] * G + self.blocks                    # receiver (agent, group)
+        order = np.argsort(self.slot, kind="stable")
+        self.edges, self.blocks, self.slot = self.edges[order], self.blocks[order], self.slot[order]
+        P = self.edges.size
+        self._n_messages = int(np.unique(self.edges).size)
+        self._sum_into = sparse.csr_matrix((np.ones(P), (self.slot, np.arange(P))), shape=(n * G, P))
+        self._weights: FloatArray | None = None
+        self._leader: np.ndarray | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.edges.size > 0 and self.n_iterations > 0
+
+    def weights(self) -> FloatArray:
+        """(P,) Metropolis–Hastings weight of each active pair, from one round of degree exchange."""
+        if self._weights is None:
+            n, G = self.members.shape
+            degree = np.bincount(self.slot, minlength=n * G).astype(float).reshape(n, G)
+            received = self._exchange(degree)                                          # d_j
+            self._weights = 1.0 / (1.0 + np.maximum(degree.reshape(-1)[self.slot], received))
+        return self._weights
+
+    def average(self, values: npt.ArrayLike) -> FloatArray:
+        """Mean of `values` ((n, ...) or grouped (n, G, ...)) over each agent's group component."""
+        x, shape = self._as_blocks(np.array(values, dtype=float))
+        if not self.active:
+            return x.reshape(shape)
+        w = self.weights()[:, None]
+        n, G = self.members.shape
+        for _ in range(self.n_iterations):
+            received = self._exchange(x)                                              # (P, r)
+            own = x.reshape(n * G, -1)[self.slot]
+            x = x + (self._sum_into @ (w * (received - own))).reshape(x.shape)
+        return x.reshape(shape)
+
+    def maximum(self, values: npt.ArrayLike) -> np.ndarray:
+        """Running maximum of `values` over each agent's group (exact after diameter rounds)."""
+        x, shape = self._as_blocks(np.array(values))
+        if not self.active:
+            return x.reshape(shape)
+        n, G = self.members.shape
+        starts = np.r_[0, np.flatnonzero(np.diff(self.slot)) + 1]
+        receivers = self.slot[starts]
+        for _ in range(self.n_iterations):
+            received = self._exchange(x)
+            flat = x.reshape(n * G, -1)
+            flat[receivers] = np.maximum(flat[receivers], np.maximum.reduceat(received, starts, axis=0))
+            x = flat.reshape(x.shape)
+        return x.reshape(shape)
+
+    def sum(self, values: npt.ArrayLike) -> FloatArray:
+        """Σ of `values` over each agent's group component (leader-ratio consensus, module doc)."""
+        x, shape = self._as_blocks(np.asarray(values, dtype=float))
+        if not self.active:
+            return x.reshape(shape).copy()
+        if self._leader is None:
+            ids = np.where(self.members, self.network.agents[:, None], np.iinfo(np.int64).min)
+            self._leader = self.maximum(ids[..., None])[..., 0]
+        is_leader = (self.members & (self._leader == self.network.agents[:, None])).astype(float)
+        averaged = self.average(np.concatenate([x, is_leader[..., None]], axis=2))
+        share = averaged[..., -1]
+        ok = (share > 1e-9) & self.members
+        total = np.where(ok[..., None], averaged[..., :-1] / np.where(ok, share, 1.0)[..., None], x)
+        return total.reshape(shape)
+
+    def _exchange(self, x: np.ndarray) -> np.ndarray:
+        """One round over the active pairs: (n, G, r) → (P, r) received."""
+        return self.network.exchange_blocks(x, self.edges, self.blocks, self._n_messages)
+
+    def _as_blocks(self, values: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
+        n, G = self.members.shape
+        if self.grouped and values.shape[:2] != (n, G):
+            raise InvalidInputError(
+                f"consensus values must have shape ({n}, {G}, ...) (agents, groups), got {values.shape}"
+            )
+        if not self.grouped and values.shape[:1] != (n,):
+            raise InvalidInputError(f"consensus values must have one row per agent ({n}), got {values.shape}")
+        rest = int(np.prod(values.shape[2 if self.grouped else 1:], dtype=np.int64))
+        return values.reshape(n, G, rest), values.shape
+
+
+def average_consensus(network: Network, values: npt.ArrayLike, n_iterations: int,
+                      members: _Mask | None = None) -> FloatArray:
+    """Each agent's estimate of the mean of `values` over its (group's) component after N_cons rounds."""
+    return GroupConsensus(network, members, n_iterations).average(values)
+
+
+def max_consensus(network: Network, values: npt.ArrayLike, n_iterations: int,
+                  members: _Mask | None = None) -> np.ndarray:
+    """Each agent's running maximum of `values` over its group after N_cons rounds (exact ≥ diameter)."""
+    return GroupConsensus(network, members, n_iterations).maximum(values)
+
+
+def network_sum(network: Network, values: npt.ArrayLike, n_iterations: int,
+                members: _Mask | None = None) -> FloatArray:
+    """Each agent's estimate of Σ values over its connected group; non-members keep their entry."""
+    return GroupConsensus(network, members, n_iterations).sum(values)
+
+
+def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
+          priority: npt.ArrayLike) -> tuple[_Mask, np.ndarray, np.ndarray]:
+    """Spread blocks to the agents that lack them (module doc).
+
+    Parameters
+    ----------
+    have : (n, G) which agents hold block g; payload : (n, G, ...) their copies.
+    n_rounds : forwarding rounds (blocks travel at most this many hops).
+    priority : (n, G) integers ranking the copies; higher wins where copies meet.
+
+    Returns (have, payload, priority) after flooding.
+    """
+    _check_iterations(n_rounds)
+    have = np.array(have, dtype=bool, copy=True)
+    payload = np.array(payload, copy=True)
+    priority = np.array(np.broadcast_to(priority, have.shape), dtype=np.int64, copy=True)
+    fresh = have.copy()                                         # blocks to forward this round
+    for _ in range(n_rounds if network.n_edges else 0):
+        edges, blocks = np.nonzero(fresh[network.source])        # every fresh block to every neighbour
+        if edges.size == 0:
+            break
+        received = network.exchange_blocks(payload, edges, blocks)
+        target = network.target[edges]
+        rank = priority[network.source[edges], blocks]
+        wanted = ~have[target, blocks] | (rank > priority[target, blocks])
+        edges, blocks, target, received, rank = (edges[wanted], blocks[wanted], target[wanted],
+                                                 received[wanted], rank[wanted])
+        # per (target, block) keep the copy with the highest priority
+        order = np.lexsort((-rank, blocks, target))
+        first = np.ones(order.size, dtype=bool)
+        key = target[order] * have.shape[1] + blocks[order]
+        first[1:] = key[1:] != key[:-1]
+        pick = order[first]
+        fresh = np.zeros_like(have)
+        t, b = target[pick], blocks[pick]
+        have[t, b] = True
+        fresh[t, b] = True
+        payload[t, b] = received[pick]
+        priority[t, b] = rank[pick]
+    return have, payload, priority
+
+
+def _check_iterations(n_iterations: int) -> None:
+    if int(n_iterations) != n_iterations or n_iterations < 0:
+        raise InvalidInputError(f"consensus n_iterations must be an integer >= 0, got {n_iterations!r}")
