@@ -39,8 +39,10 @@ from cooploc.metrics import (
     VEHICLE,
     ErrorTable,
     evaluate,
+    ospa_per_step,
     per_entity_rmse,
     rmse,
+    total_rmse,
 )
 from cooploc.params import Params
 from cooploc.scenarios import get_preset
@@ -168,6 +170,7 @@ class RunResult:
     step_seconds: dict[str, float]
     n_steps: dict[str, int]
     association: dict[str, tuple[int, int]] = field(default_factory=dict)
+    ospa: dict[str, np.ndarray] = field(default_factory=dict)  # per step, m (metrics.ospa)
 
 
 @dataclass(frozen=True)
@@ -209,7 +212,7 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
     names = [e.name for e in config.estimators]
     scenario_rng, estimator_rngs = run_generators(config.seed, run, names)
     recording = preset.generate(scenario_rng, config.scenario_params)
-    errors, seconds, steps, association = {}, {}, {}, {}
+    errors, seconds, steps, association, ospa = {}, {}, {}, {}, {}
     for spec in config.estimators:
         estimator = make_estimator(spec.name, recording.setup, spec.params,
                                    estimator_rngs[spec.name], recording.truth)
@@ -226,10 +229,11 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
                 correct += int(np.sum(np.asarray(decided) == true))
                 total += int(true.size)
         errors[spec.name] = evaluate(recording, estimates)
+        ospa[spec.name] = ospa_per_step(recording, estimates)
         seconds[spec.name], steps[spec.name] = spent, len(recording.frames)
         if total:
             association[spec.name] = (correct, total)
-    return RunResult(run, errors, seconds, steps, association)
+    return RunResult(run, errors, seconds, steps, association, ospa)
 
 
 # ----------------------------------------------------------------------------
@@ -411,6 +415,7 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
         steps = sum(r.n_steps[spec.name] for r in result.runs)
         assoc = [r.association[spec.name] for r in result.runs if spec.name in r.association]
         heading = table.err_heading[vehicles]
+        ospa_steps = [r.ospa[spec.name] for r in result.runs if spec.name in r.ospa]
         out["estimators"][spec.name] = {
             "params": spec.params.to_dict(),
             "vehicle_rmse": {str(k): v for k, v in
@@ -423,6 +428,11 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
             "association_accuracy": (sum(c for c, _ in assoc) / sum(t for _, t in assoc))
             if assoc else None,
             "steps_per_second": steps / seconds if seconds > 0 else None,
+            # added for Zhang 2016 (DESIGN §6 allows new keys): eq. (20) and OSPA (m)
+            "total_rmse": _finite_or_none(total_rmse(table.step[vehicles], table.err_pos[vehicles],
+                                                     run[vehicles])),
+            "ospa": _finite_or_none(float(np.mean(np.concatenate(ospa_steps))))
+            if ospa_steps else None,
         }
     return out
 
