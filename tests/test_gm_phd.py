@@ -19,7 +19,14 @@ import stonesoup  # noqa: F401  (a test dependency: installed by the dev extra, 
 from scipy.optimize import linear_sum_assignment
 from scipy.stats import multivariate_normal
 
-from cooploc.estimators.gm_phd import GMPHD, GMPHDParams, Mixture, merge_components, phd_update, stonesoup_reference
+from cooploc.estimators.gm_phd import (
+    GMPHD,
+    GMPHDParams,
+    Mixture,
+    merge_components,
+    phd_update,
+    stonesoup_reference,
+)
 from cooploc.scenarios import get_preset
 from cooploc.types import Frame, Recording
 
