@@ -44,6 +44,7 @@ COMPARED = ("sme-pf", "kf-known-da", "gm-phd", "sme-ukf")
 AXES_LABEL = "sme-pf (eq. 17 per axis)"
 DEFAULT_RUNS = 20
 QUICK = {"n_steps": 15}
+QUICK_ESTIMATORS = {"sme-pf": {"n_particles": 300}}  # quick mode checks the pipeline only
 
 
 def per_run_total(result: ExperimentResult, name: str) -> list[float]:
@@ -63,6 +64,9 @@ def paired_difference(a: list[float], b: list[float]) -> tuple[float, float]:
 
 def _config(scenario: str, names: list[str], options: ReproduceOptions, runs: int,
             overrides: dict[str, dict[str, Any]] | None = None) -> ExperimentConfig:
+    overrides = dict(overrides or {})
+    if options.quick and "sme-pf" in names:
+        overrides["sme-pf"] = {**QUICK_ESTIMATORS["sme-pf"], **overrides.get("sme-pf", {})}
     return ExperimentConfig.build(scenario, names, scenario_overrides=QUICK if options.quick else {},
                                   estimator_overrides=overrides, runs=runs, seed=options.seed,
                                   backend=options.backend, workers=options.workers)
@@ -77,7 +81,9 @@ def _trajectories(scenario: str, names: list[str], options: ReproduceOptions) ->
     pos = list(rec.setup.vehicle_layout.position)
     out: dict[str, Any] = {"truth": rec.truth.vehicle_states[:, :, pos].tolist(), "estimates": {}}
     for name in names:
-        est = make_estimator(name, rec.setup, None, rngs[name], rec.truth)
+        cls = estimators()[name]
+        params = cls.Params().with_overrides(QUICK_ESTIMATORS.get(name, {}) if options.quick else {})
+        est = make_estimator(name, rec.setup, params, rngs[name], rec.truth)
         out["estimates"][name] = [est.step(f).vehicles.mean[:, pos].tolist() for f in rec.frames]
     return out
 
