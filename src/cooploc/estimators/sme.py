@@ -47,6 +47,26 @@ So the pseudo-measurement has a state-dependent *bias* b_k = Σ_i (μ_k(i) − u
 R_a(u). Moments up to order 2N are needed. The x and y sums are independent when each
 row's covariance is diagonal (as in the paper); off-diagonal terms are ignored.
 
+*Complex sums of powers* (``form="complex"``, our default). Eq. (17) recovers the
+multiset of x values and the multiset of y values, but not which x goes with which y
+— information *is* lost in 2-D, contrary to §3.2.3, and eq. (18) is a function of the
+two multisets as well, so it cannot restore the pairing. In §4.1 three vehicles start
+at one point, and a per-axis SME can then follow the x-motion of one vehicle with the
+y-motion of another forever (tests/test_sme.py shows two such sets). Taking
+c_i = x_i + i y_i and s_k = Σ_i c_iᵏ (k = 1..N; real and imaginary parts, 2N reals as
+eq. 17) keeps the pairing: the c_i are the roots of one polynomial. With isotropic
+row noise ε_i = v_x + i v_y, E|ε|² = 2σ² =: s_i, the noise is circular
+(E[εᵃ ε̄ᵇ] = δ_ab a! s_iᵃ, E[εᵃ] = 0 for a ≥ 1), hence
+
+.. math:: E[s_k] = \sum_i c_i^k \quad\text{(no bias)},\qquad
+          Γ_{kl} = E[(s_k - E s_k)\overline{(s_l - E s_l)}]
+          = \sum_i \sum_{j=1}^{\min(k,l)} \binom{k}{j}\binom{l}{j} j!\, s_i^j\,
+            c_i^{k-j} \bar c_i^{\,l-j},
+
+and the pseudo-covariance E[(s_k − E s_k)(s_l − E s_l)] = 0, so the covariance of
+[Re s; Im s] is ½ [[Re Γ, −Im Γ], [Im Γ, Re Γ]]. (Row variances that differ between
+axes are averaged.)
+
 *Topology.* Stack the radar rows of one axis as q_a = P_a + w_a (P_a the rotated and
 translated true positions, w_a ~ N(0, D), D = diag(d_i), isotropic rows). With the
 Laplacian of the complete graph L = N I − 11ᵀ, T = Σ_a q_aᵀ L q_a, a Gaussian quadratic
@@ -73,10 +93,22 @@ structure makes R nearly singular.
 
 Filters
 -------
-- `sme-pf` (the paper's): bootstrap particle filter over the joint state, particles
+- `sme-pf` (the paper's): particle filter over the joint state, particles
   (n_particles, N, 4) predicted by the motion model and weighted in log domain with the
-  Gaussian pseudo-likelihood evaluated *per particle* (its own bias and R). Systematic
-  resampling when the effective sample size falls below `resample_threshold`. After
+  Gaussian pseudo-likelihood evaluated *per particle* (its own bias and R; a numba
+  kernel, one pass over the particles, checked against the NumPy reference). A plain
+  bootstrap update collapses in this 20-dimensional state (effective sample size ~10
+  of 2000 with the §4.1 noise), so the update is tempered (progressive correction,
+  Oudjane & Musso 2000): the likelihood enters in powers δ chosen by bisection so that
+  each stage keeps `target_ess` of the particles (Jasra et al. 2011), and after each
+  systematic resampling `n_moves` Metropolis–Hastings sweeps move the particles
+  (resample-move, Gilks & Berzuini 2001) with target p(x_k | x_{k−1}) p(y | x_k)^β
+  given each particle's own parent x_{k−1}, random-walk proposals scaled 2.38²/d times
+  the narrower of the cloud's and the transition's covariance (acceptance ≈ 0.24).
+  `n_particles` = 2000 by measurement (benchmarks/zhang2016.py, 8 runs of
+  zhang2016-cv each; total error of eq. 20): 250 → 3.52 ± 0.27 m, 500 → 2.61 ± 0.05,
+  1000 → 2.41 ± 0.04, 2000 → 2.11 ± 0.03, 4000 → 1.97 ± 0.02; beyond 2000 each halving
+  of the error costs far more time than the particles double. After
   each update the vehicle blocks of every particle are relabelled by the permutation
   that best matches the predicted estimate (exhaustive over the N! permutations for
   N ≤ 7, otherwise skipped): the likelihood and the (identical per-vehicle) motion
@@ -109,8 +141,10 @@ Vehicles that enter get a block from `Setup.vehicle_prior` if they have one (pre
 to the step), else a belief centred on the GPS row farthest from every predicted
 vehicle with `default_birth_cov` velocity variance; vehicles that leave lose their block.
 
-Complexity per step: PF O(P N³) (P particles, N ≤ 5: batched Cholesky of N × N) plus
-O(P N! N) for the relabelling; UKF O(N³ · 4³) for the joint 4N-state.
+Complexity per step: PF O(S P N⁴) for S tempering stages with n_moves likelihood
+passes each (per particle: moments O(N³) — O(N⁴) in complex form — and a 2N × 2N
+Cholesky) plus O(P N! N) for the relabelling; UKF O((4N)³) for the joint 4N-state and
+O(N · N⁴) moments per sigma point.
 """
 
 from __future__ import annotations
