@@ -39,9 +39,11 @@ from cooploc.metrics import (
     VEHICLE,
     ErrorTable,
     evaluate,
+    ospa_per_step,
     per_entity_rmse,
     relabel,
     rmse,
+    total_rmse,
     track_identities,
 )
 from cooploc.params import Params
@@ -171,6 +173,7 @@ class RunResult:
     n_steps: dict[str, int]
     association: dict[str, tuple[int, int]] = field(default_factory=dict)
     discarded: dict[str, tuple[int, int]] = field(default_factory=dict)
+    ospa: dict[str, np.ndarray] = field(default_factory=dict)  # per step, m (metrics.ospa)
 
 
 @dataclass(frozen=True)
@@ -212,7 +215,7 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
     names = [e.name for e in config.estimators]
     scenario_rng, estimator_rngs = run_generators(config.seed, run, names)
     recording = preset.generate(scenario_rng, config.scenario_params)
-    errors, seconds, steps, association, discarded = {}, {}, {}, {}, {}
+    errors, seconds, steps, association, discarded, ospa = {}, {}, {}, {}, {}, {}
     for spec in config.estimators:
         estimator = make_estimator(spec.name, recording.setup, spec.params,
                                    estimator_rngs[spec.name], recording.truth)
@@ -247,10 +250,11 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
                          if e.features is not None else e for e in estimates]
             discarded[spec.name] = (dropped, rows)
         errors[spec.name] = evaluate(recording, estimates)
+        ospa[spec.name] = ospa_per_step(recording, estimates)
         seconds[spec.name], steps[spec.name] = spent, len(recording.frames)
         if total:
             association[spec.name] = (correct, total)
-    return RunResult(run, errors, seconds, steps, association, discarded)
+    errors, seconds, steps, association, discarded, ospa = {}, {}, {}, {}, {}, {}
 
 
 # ----------------------------------------------------------------------------
@@ -433,6 +437,7 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
         assoc = [r.association[spec.name] for r in result.runs if spec.name in r.association]
         dropped = [r.discarded[spec.name] for r in result.runs if spec.name in r.discarded]
         heading = table.err_heading[vehicles]
+        ospa_steps = [r.ospa[spec.name] for r in result.runs if spec.name in r.ospa]
         out["estimators"][spec.name] = {
             "params": spec.params.to_dict(),
             "vehicle_rmse": {str(k): v for k, v in
@@ -447,6 +452,11 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
             "discarded_share": (sum(d for d, _ in dropped) / sum(t for _, t in dropped))
             if dropped and sum(t for _, t in dropped) else None,
             "steps_per_second": steps / seconds if seconds > 0 else None,
+            # added for Zhang 2016 (DESIGN §6 allows new keys): eq. (20) and OSPA (m)
+            "total_rmse": _finite_or_none(total_rmse(table.step[vehicles], table.err_pos[vehicles],
+                                                     run[vehicles])),
+            "ospa": _finite_or_none(float(np.mean(np.concatenate(ospa_steps))))
+            if ospa_steps else None,
         }
     return out
 

@@ -37,7 +37,7 @@ __all__ = [
 ]
 
 MAX_PANELS = 6  # more vehicles than this: the first ones are drawn, the pooled RMSE is in the report
-BOUND_ESTIMATORS = ("oracle-kf", "icp")
+BOUND_ESTIMATORS = ("oracle-kf", "icp", "kf-known-da")
 
 
 def _style(name: str) -> dict[str, Any]:
@@ -177,6 +177,11 @@ def run_report(summary: Mapping[str, Any], figures: Sequence[tuple[str, str]]) -
                      + f" | {format_number(e['vehicle_rmse_all'])} | {format_number(e['feature_rmse_all'])}"
                      f" | {format_number(e['steps_per_second'], 4)} |")
     lines.append("")
+    if any(e.get("total_rmse") is not None for e in est.values()):  # Zhang 2016 eq. (20), OSPA
+        lines += ["| estimator | total error, eq. (20) [m] | OSPA (c = 10 m, p = 2) [m] |", "|---|---|---|"]
+        lines += [f"| {name} | {format_number(e.get('total_rmse'))} | {format_number(e.get('ospa'))} |"
+                  for name, e in est.items()]
+        lines.append("")
     for caption, name in figures:
         lines += [f"![{caption}]({name})", ""]
     lines.append("Data: `summary.json`, `errors.parquet`; configuration: `config.toml`.")

@@ -14,16 +14,30 @@ import numpy as np
 
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import AssociationTruth, Estimator
+from cooploc.estimators.gm_phd import GMPHD
 from cooploc.estimators.gnss_kf import GnssKF
 from cooploc.estimators.icp import ICP, ICPDALC, ICPDAPF
+from cooploc.estimators.kf_known_da import KFKnownDA
 from cooploc.estimators.oracle_kf import OracleKF
 from cooploc.estimators.rsu_bp import RsuBP
+from cooploc.estimators.sme import SmePF, SmeUKF
 from cooploc.params import Params
 from cooploc.types import Setup, Truth
 
 __all__ = ["Estimator", "estimators", "get_estimator", "make_estimator"]
 
-_REGISTRY: dict[str, type] = {cls.name: cls for cls in (GnssKF, OracleKF, RsuBP, ICP, ICPDALC, ICPDAPF)}
+_REGISTRY: dict[str, type] = {cls.name: cls for cls in (
+    GnssKF,
+    OracleKF,
+    RsuBP,
+    ICP,
+    ICPDALC,
+    ICPDAPF,
+    KFKnownDA,
+    SmePF,
+    SmeUKF,
+    GMPHD,
+)}
 
 
 def estimators() -> dict[str, type]:

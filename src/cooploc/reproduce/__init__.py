@@ -55,9 +55,9 @@ class PaperExperiment:
 
 def experiments() -> dict[str, PaperExperiment]:
     """All paper experiments by name."""
-    from cooploc.reproduce import brambilla2020, froehle2018
+    from cooploc.reproduce import brambilla2020, froehle2018, zhang2016
 
-    return {e.name: e for e in (froehle2018.EXPERIMENT, brambilla2020.EXPERIMENT)}
+    return {e.name: e for e in (froehle2018.EXPERIMENT, brambilla2020.EXPERIMENT, zhang2016.EXPERIMENT)}
 
 
 def get_experiment(name: str) -> PaperExperiment:

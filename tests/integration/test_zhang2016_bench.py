@@ -1,0 +1,23 @@
+"""benchmarks/zhang2016.py runs at quick size and writes its JSON (no timing asserted)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_benchmark_writes_json(tmp_path):
+    spec = importlib.util.spec_from_file_location("zhang_bench", ROOT / "benchmarks" / "zhang2016.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    out = tmp_path / "bench.json"
+    assert module.main(["--quick", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    curve = data["sme_pf_particles"]
+    assert len(curve["n_particles"]) == len(curve["total_rmse_mean"]) == len(curve["ms_per_step"])
+    assert all(v > 0 for v in curve["ms_per_step"])
+    assert data["gm_phd"]["gm_phd_us_per_step"] > 0 and data["gm_phd"]["stonesoup_us_per_step"] > 0
+    assert all(v > 0 for v in data["peak_memory_bytes"].values())

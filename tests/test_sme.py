@@ -1,0 +1,237 @@
+"""`sme-pf` / `sme-ukf`: the symmetric maps, the derived pseudo-measurement noise, the filters.
+
+Oracles: Newton's identities (the sum-of-powers map is invertible), Monte Carlo
+estimates of the noise moments (bounds of 6 standard errors of the Monte Carlo mean:
+a false alarm has probability ~1e-9 per entry, for any seed), the rigid-motion and
+permutation invariance of the topology, and the NumPy reference of the numba kernel.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cooploc.estimators import make_estimator
+from cooploc.estimators.sme import (
+    PseudoMeasurement,
+    SmePFParams,
+    SmeUKFParams,
+    complex_power_sum_moments,
+    complex_power_sums,
+    gaussian_raw_moments,
+    points_from_power_sums,
+    power_sum_moments,
+    power_sums,
+    systematic_resample,
+    topology,
+    topology_moments,
+)
+from cooploc.scenarios import get_preset
+from cooploc.sensors import rotation
+from cooploc.types import Batch, Frame, Recording
+from helpers import assert_valid_estimate
+
+MC_SAMPLES = 100_000
+SIGMAS = 6.0  # Monte Carlo bound in standard errors of the sample mean
+ROUND_OFF = 1e-9  # relative tolerance of exact identities evaluated in float64
+
+
+def assert_moments_match(samples: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> None:
+    """Sample mean and covariance entries agree with the analytic ones within SIGMAS s.e."""
+    n = samples.shape[0]
+    se_mean = samples.std(axis=0, ddof=1) / np.sqrt(n)
+    assert np.all(np.abs(samples.mean(0) - mean) <= SIGMAS * se_mean + ROUND_OFF * np.abs(mean)), (
+        samples.mean(0), mean)
+    centred = samples - mean                                       # analytic mean: unbiased products
+    products = centred[:, :, None] * centred[:, None, :]
+    se_cov = products.std(axis=0, ddof=1) / np.sqrt(n)
+    assert np.all(np.abs(products.mean(0) - cov) <= SIGMAS * se_cov + ROUND_OFF * np.abs(cov)), (
+        products.mean(0), cov)
+
+
+def spaced_points(rng: np.random.Generator, n: int, spacing: float = 0.2) -> np.ndarray:
+    """n values in [−1, 1] at least `spacing` apart (roots well conditioned)."""
+    base = np.linspace(-1, 1, n) if n > 1 else np.zeros(1)
+    jitter = rng.uniform(-0.5, 0.5, n) * max(2.0 / max(n - 1, 1) - spacing, 0.0)
+    return rng.permutation(base + jitter)
+
+
+# ----------------------------------------------------------------------------
+# the symmetric maps
+# ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5, 6])
+def test_power_sums_recover_the_measurement_set(rng: np.random.Generator, n: int) -> None:
+    values = spaced_points(rng, n)
+    recovered = points_from_power_sums(power_sums(values, n))
+    # well-separated roots of a degree ≤ 6 polynomial: error ~ 1e-12, bound with margin
+    np.testing.assert_allclose(recovered, np.sort(values), atol=1e-8)
+
+
+@given(st.lists(st.floats(-3, 3), min_size=1, max_size=6), st.randoms(use_true_random=False))
+@settings(max_examples=50, deadline=None)
+def test_symmetric_maps_ignore_the_order(values: list[float], random) -> None:
+    points = np.column_stack([values, values[::-1]])
+    order = list(range(len(values)))
+    random.shuffle(order)
+    n = len(values)
+    np.testing.assert_allclose(power_sums(points[order, 0], n), power_sums(points[:, 0], n),
+                               rtol=ROUND_OFF, atol=ROUND_OFF)
+    np.testing.assert_allclose(complex_power_sums(points[order], n), complex_power_sums(points, n),
+                               rtol=ROUND_OFF, atol=1e-7)
+
+
+@given(st.lists(st.tuples(st.floats(-50, 50), st.floats(-50, 50)), min_size=2, max_size=6),
+       st.floats(-np.pi, np.pi), st.floats(-100, 100), st.floats(-100, 100),
+       st.randoms(use_true_random=False))
+@settings(max_examples=60, deadline=None)
+def test_topology_is_invariant_to_radar_pose_and_order(points, yaw, tx, ty, random) -> None:
+    p = np.array(points, dtype=float)
+    order = list(range(len(p)))
+    random.shuffle(order)
+    local = ((p - [tx, ty]) @ rotation(yaw))[order]               # z = R(θ)ᵀ (p − t), shuffled
+    direct = sum(np.sum((p[i] - p[j]) ** 2) for i in range(len(p)) for j in range(i + 1, len(p)))
+    scale = max(direct, 1.0)
+    assert abs(topology(p) - direct) <= 1e-9 * scale             # eq. (18) by its double sum
+    assert abs(topology(local) - topology(p)) <= 1e-9 * scale
+
+
+def test_per_axis_sums_lose_the_pairing_and_complex_sums_keep_it() -> None:
+    # two sets with the same x multiset and the same y multiset, paired differently
+    a = np.array([[0.0, 1.0], [-1.5, 3.0], [2.0, -1.0]])
+    b = np.array([[-1.5, 1.0], [0.0, 3.0], [2.0, -1.0]])
+    for axis in range(2):
+        np.testing.assert_allclose(power_sums(a[:, axis], 3), power_sums(b[:, axis], 3))
+    assert topology(a) == pytest.approx(topology(b))              # eq. (18) cannot tell either
+    assert np.abs(complex_power_sums(a, 3) - complex_power_sums(b, 3)).max() > 1.0
+
+
+# ----------------------------------------------------------------------------
+# the derived noise moments
+# ----------------------------------------------------------------------------
+
+
+def test_gaussian_raw_moments_match_the_closed_forms() -> None:
+    m, s2 = 0.7, 0.3
+    mu = gaussian_raw_moments(m, s2, 4)
+    expected = [1, m, m**2 + s2, m**3 + 3 * m * s2, m**4 + 6 * m**2 * s2 + 3 * s2**2]
+    np.testing.assert_allclose(mu, expected, rtol=ROUND_OFF)
+
+
+@pytest.mark.parametrize("n", [2, 5])
+def test_power_sum_noise_matches_monte_carlo(rng: np.random.Generator, n: int) -> None:
+    values = spaced_points(rng, n)
+    var = rng.uniform(0.005, 0.02, n)                              # per-row variances differ
+    mean, cov = power_sum_moments(values, var, n)
+    noisy = values + rng.standard_normal((MC_SAMPLES, n)) * np.sqrt(var)
+    assert_moments_match(power_sums(noisy, n), mean, cov)
+    bias = mean - power_sums(values, n)
+    np.testing.assert_allclose(bias[1], var.sum(), rtol=ROUND_OFF)          # b_2 = Σ σ²
+    if n >= 3:
+        np.testing.assert_allclose(bias[2], 3 * np.sum(values * var), rtol=1e-7, atol=1e-12)
+
+
+def test_complex_power_sum_noise_matches_monte_carlo(rng: np.random.Generator) -> None:
+    n = 4
+    points = rng.uniform(-1, 1, (n, 2))
+    var = 0.01
+    mean, cov = complex_power_sum_moments(points, var, n)
+    noisy = points + rng.standard_normal((MC_SAMPLES, n, 2)) * np.sqrt(var)
+    assert_moments_match(complex_power_sums(noisy, n), mean, cov)
+    # circular noise: no bias at all
+    np.testing.assert_allclose(mean, complex_power_sums(points, n), rtol=ROUND_OFF, atol=ROUND_OFF)
+
+
+@pytest.mark.parametrize("equal", [True, False])
+def test_topology_noise_matches_monte_carlo(rng: np.random.Generator, equal: bool) -> None:
+    n = 5
+    points = rng.uniform(-1, 1, (n, 2))
+    var = np.full(n, 0.01) if equal else rng.uniform(0.005, 0.03, n)
+    mean, variance = topology_moments(points, var)
+    noisy = points + rng.standard_normal((MC_SAMPLES, n, 2)) * np.sqrt(var)[:, None]
+    assert_moments_match(topology(noisy)[:, None], np.array([mean]), np.array([[variance]]))
+    if equal:  # the closed form of the module docstring
+        d, spread = var[0], ((points - points.mean(0)) ** 2).sum()
+        assert variance == pytest.approx(4 * d**2 * n**2 * (n - 1) + 4 * n**2 * d * spread, rel=1e-12)
+
+
+@pytest.mark.parametrize("form", ["axes", "complex"])
+def test_numba_likelihood_equals_the_numpy_reference(rng: np.random.Generator, form: str) -> None:
+    n = 5
+    truth = rng.uniform(-1, 1, (n, 2))
+    z = truth + 0.05 * rng.standard_normal((n, 2))
+    y = complex_power_sums(z, n) if form == "complex" else np.concatenate(
+        [power_sums(z[:, 0], n), power_sums(z[:, 1], n)])
+    centre, scale = np.array([0.3, -0.2]), 2.0
+    model = PseudoMeasurement(centre, scale, form, np.array([0.01, 0.012]), 0.002, y,
+                              float(topology(z)), 1e-9)
+    particles = centre + scale * (truth + 0.05 * rng.standard_normal((64, n, 2)))  # global frame
+    np.testing.assert_allclose(model.log_likelihood(particles), model.log_likelihood_reference(particles),
+                               rtol=1e-9, atol=1e-8)
+
+
+def test_systematic_resampling_keeps_the_weights(rng: np.random.Generator) -> None:
+    w = rng.dirichlet(np.ones(20))
+    counts = np.bincount(systematic_resample(np.log(w), rng), minlength=20)
+    # systematic resampling: each count is floor or ceil of P w
+    P = 20
+    assert np.all(np.abs(counts - P * w) < 1.0 + 1e-12)
+
+
+# ----------------------------------------------------------------------------
+# the filters
+# ----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def short_cv(seed: int) -> Recording:
+    preset = get_preset("zhang2016-cv")
+    return preset.generate(np.random.default_rng([seed, 5]), preset.params.with_overrides({"n_steps": 12}))
+
+
+@pytest.mark.parametrize("name, params", [("sme-pf", SmePFParams(n_particles=300)),
+                                          ("sme-ukf", SmeUKFParams())])
+def test_filters_track_the_vehicles(name: str, params, short_cv: Recording) -> None:
+    est = make_estimator(name, short_cv.setup, params, np.random.default_rng(0))
+    for frame in short_cv.frames:
+        estimate = est.step(frame)
+        assert_valid_estimate(estimate, frame, short_cv)
+        assert estimate.info["set_valued"] is True
+    true = short_cv.truth.vehicle_states[-1][:, :2]
+    mean = estimate.vehicles.mean[:, :2]
+    from cooploc.metrics import set_errors
+    # GPS σ = 0.71 m per axis: a tracking filter is within a few metres of every vehicle
+    assert np.nanmax(set_errors(mean, true)) < 5.0
+
+
+def test_pf_skips_an_update_whose_row_count_is_not_n(short_cv: Recording) -> None:
+    frame = short_cv.frames[3]
+    gnss = frame.batches["gnss"]
+    short = Frame(frame.k, frame.t, frame.vehicles,
+                  {"gnss": gnss.select(np.arange(len(gnss) - 1)), "radar": frame.batches["radar"]})
+    est = make_estimator("sme-pf", short_cv.setup, SmePFParams(n_particles=200), np.random.default_rng(1))
+    for f in short_cv.frames[:3]:
+        est.step(f)
+    estimate = est.step(short)
+    assert estimate.info["skipped"] == ["gnss"]
+    assert np.isfinite(estimate.vehicles.mean).all()
+
+
+def test_pf_gates_clutter_rows(short_cv: Recording) -> None:
+    setup = dataclasses.replace(short_cv.setup, clutter_rate=1.0)
+    est = make_estimator("sme-pf", setup, SmePFParams(n_particles=200), np.random.default_rng(1))
+    for f in short_cv.frames[:3]:
+        est.step(f)
+    frame = short_cv.frames[3]
+    gnss = frame.batches["gnss"]
+    clutter = Batch(np.vstack([gnss.z, [[150.0, 300.0]]]), np.concatenate([gnss.cov, gnss.cov[:1]]),
+                    np.full(len(gnss) + 1, -1), np.full(len(gnss) + 1, -1))
+    estimate = est.step(Frame(frame.k, frame.t, frame.vehicles,
+                              {"gnss": clutter, "radar": frame.batches["radar"]}))
+    assert estimate.info["gnss_rows_gated"] == 1 and estimate.info["gnss_rows_used"] == len(gnss)
+    assert "gnss" not in estimate.info["skipped"]

@@ -1,0 +1,170 @@
+"""The Zhang 2016 scenarios, the set-valued metrics (assignment, OSPA, eq. 20) and the paper's ordering."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cooploc.errors import ConfigError
+from cooploc.experiment import ExperimentConfig, run_experiment, summarize
+from cooploc.metrics import evaluate, optimal_assignment, ospa, set_errors, total_rmse
+from cooploc.reproduce.zhang2016 import paired_difference, per_run_total
+from cooploc.scenarios import get_preset
+from cooploc.scenarios.zhang2016 import INITIAL_STATES_PAPER, RADAR_ID, ZhangParams, initial_states
+from cooploc.sensors import to_local
+from cooploc.types import Estimate, StateSet
+
+NOISE_SIGMAS = 6.0  # bound of sample statistics in standard errors (false alarm ~1e-9)
+
+
+@pytest.fixture(scope="module")
+def runs(seed: int) -> dict:
+    return {name: get_preset(name).generate(np.random.default_rng([seed, 11]))
+            for name in ("zhang2016-cv", "zhang2016-ct2", "zhang2016-ct4")}
+
+
+def test_initial_states_in_cooploc_layout() -> None:
+    x = initial_states()
+    np.testing.assert_array_equal(x[0], [0.0, 100.0, -1.5, -1.0])   # paper [0, −1.5, 100, −1]
+    np.testing.assert_array_equal(x[:, [0, 2, 1, 3]], INITIAL_STATES_PAPER)
+
+
+def test_cv_vehicles_move_in_straight_lines(runs: dict) -> None:
+    rec = runs["zhang2016-cv"]
+    x = rec.truth.vehicle_states
+    k = np.arange(x.shape[0])[:, None, None]
+    np.testing.assert_allclose(x[..., :2], x[0, :, :2] + k * x[0, :, 2:], atol=1e-9)
+    assert rec.setup.vehicle_layout.position == (0, 1)
+    assert rec.truth.sensor_poses.shape == (1, 3) and rec.setup.infrastructure_ids == (RADAR_ID,)
+
+
+@pytest.mark.parametrize("name, turning", [("zhang2016-ct2", [0, 4]), ("zhang2016-ct4", [0, 1, 3, 4])])
+def test_turning_vehicles_keep_speed_and_turn_at_omega(runs: dict, name: str, turning: list[int]) -> None:
+    v = runs[name].truth.vehicle_states[..., 2:]
+    speed = np.linalg.norm(v, axis=-1)
+    np.testing.assert_allclose(speed, np.broadcast_to(speed[0], speed.shape), rtol=1e-12)  # constant
+    heading = np.unwrap(np.arctan2(v[..., 1], v[..., 0]), axis=0)
+    rate = np.diff(heading, axis=0).mean(0)                                    # rad per 1 s step
+    expected = np.array(get_preset(name).params.turn_rates)
+    assert np.count_nonzero(expected) == len(turning) and np.all(expected[turning] != 0)
+    np.testing.assert_allclose(rate, expected, atol=1e-12)
+
+
+def test_rows_are_anonymous_and_noisy_as_stated(runs: dict) -> None:
+    rec = runs["zhang2016-cv"]
+    pose = rec.truth.sensor_poses[0]
+    residual_gnss, residual_radar = [], []
+    for k, frame in enumerate(rec.frames):
+        gnss, radar = frame.batches["gnss"], frame.batches["radar"]
+        assert (gnss.sensor == -1).all() and (gnss.subject == -1).all() and (radar.subject == -1).all()
+        truth = rec.truth.vehicle_states[k][:, :2]
+        residual_gnss.append(gnss.z - truth[rec.truth.origin[k]["gnss"]])
+        residual_radar.append(radar.z - to_local(pose, truth[rec.truth.origin[k]["radar"]]))
+    for residual, variance in ((np.concatenate(residual_gnss), 0.5), (np.concatenate(residual_radar), 0.1)):
+        n = residual.shape[0]
+        # sample variance of Gaussian noise: standard error variance · sqrt(2 / n)
+        assert np.all(np.abs(residual.var(0) - variance) < NOISE_SIGMAS * variance * np.sqrt(2 / n))
+    # shuffled: the origin order is not the vehicle order at every step
+    assert any(not np.array_equal(o["gnss"], np.arange(5)) for o in rec.truth.origin)
+
+
+def test_misses_and_clutter(seed: int) -> None:
+    preset = get_preset("zhang2016-cv")
+    rec = preset.generate(np.random.default_rng([seed, 12]), preset.params.with_overrides(
+        {"n_steps": 30, "detection_probability": 0.5, "clutter_rate": 3.0}))
+    counts = np.array([len(f.batches["gnss"]) for f in rec.frames])
+    origins = np.concatenate([o["gnss"] for o in rec.truth.origin])
+    assert (origins == -1).any() and (counts != 5).any()
+
+
+def test_params_are_validated() -> None:
+    with pytest.raises(ConfigError, match="n_vehicles"):
+        ZhangParams(n_vehicles=6)
+    with pytest.raises(ConfigError, match="turn_rates"):
+        ZhangParams(n_vehicles=2, turn_rates=(0.1, 0.1, 0.1))
+
+
+# ----------------------------------------------------------------------------
+# metrics of set-valued estimates
+# ----------------------------------------------------------------------------
+
+
+def test_ospa_known_values() -> None:
+    X = np.array([[0.0, 0.0], [10.0, 0.0]])
+    assert ospa(X, X) == 0.0
+    assert ospa(X, X[::-1] + np.array([0.0, 3.0])) == pytest.approx(3.0)             # order is ignored
+    # one missed target costs c: ((0 + c²) / 2)^{1/2}
+    assert ospa(X[:1], X, cutoff=10.0) == pytest.approx(np.sqrt(50.0))
+    assert ospa(np.zeros((0, 2)), np.zeros((0, 2))) == 0.0
+    assert ospa(np.zeros((0, 2)), X, cutoff=7.0) == 7.0
+
+
+def test_assignment_errors_ignore_labels(rng: np.random.Generator) -> None:
+    true = rng.uniform(-50, 50, (5, 2))
+    est = true[[3, 0, 4, 1, 2]] + 0.1
+    rows, cols = optimal_assignment(est, true)
+    np.testing.assert_array_equal(cols[np.argsort(rows)], [3, 0, 4, 1, 2])
+    np.testing.assert_allclose(set_errors(est, true), np.sqrt(0.02))
+    assert np.isnan(set_errors(est[:4], true)).sum() == 1
+
+
+def test_evaluate_assigns_set_valued_estimates(runs: dict) -> None:
+    rec = runs["zhang2016-cv"]
+    k = 7
+    true = rec.truth.vehicle_states[k]
+    shuffled = StateSet(np.arange(5), true[[4, 2, 0, 1, 3]] + 0.5, np.repeat(np.eye(4)[None], 5, 0))
+    estimates = [Estimate(shuffled, None, {"set_valued": True})] * len(rec.frames)
+    table = evaluate(rec, estimates)
+    at_k = table.step == k
+    np.testing.assert_allclose(table.err_pos[at_k], np.sqrt(0.5), rtol=1e-12)
+    # the same estimate without the mark is scored by id: the shuffle shows
+    labelled = evaluate(rec, [Estimate(shuffled)] * len(rec.frames))
+    assert labelled.err_pos[labelled.step == k].max() > 10
+
+
+def test_total_rmse_is_eq_20() -> None:
+    step = np.array([0, 0, 1, 1])
+    err = np.array([1.0, 2.0, 3.0, 0.0])
+    assert total_rmse(step, err) == pytest.approx(np.sqrt(((1 + 4) + 9) / 2))
+
+
+def test_summary_has_total_rmse_and_ospa(seed: int) -> None:
+    config = ExperimentConfig.build("zhang2016-cv", ["kf-known-da", "gm-phd"], runs=2, seed=seed % 1000,
+                                    backend="serial", scenario_overrides={"n_steps": 10})
+    summary = summarize(run_experiment(config))
+    for name in ("kf-known-da", "gm-phd"):
+        entry = summary["estimators"][name]
+        assert entry["total_rmse"] > 0 and entry["ospa"] > 0
+        assert entry["total_rmse"] == pytest.approx(np.sqrt(5) * entry["vehicle_rmse_all"], rel=1e-9)
+
+
+# ----------------------------------------------------------------------------
+# the paper's ordering (Fig. 3, CV)
+# ----------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_ordering_on_zhang2016_cv(seed: int) -> None:
+    """The paper's Fig. 3 ordering SME < KF < PHD against what we measure, paired over runs.
+
+    Measured (`cooploc reproduce zhang2016`, 20 runs; and 24 runs, seed 5): the Kalman
+    filter given the association is the most accurate. SME (here its UKF form, the one
+    fast enough for the test budget; `sme-pf` with 2000 particles is worse still) is
+    *worse* than KF by ≈ 0.2 m of total error (z ≈ 4.5 over 24 paired runs): the radar's
+    topology adds one scalar per step, too little to pay for the approximation of the
+    nonlinear filter. GM-PHD with the known vehicle count equals KF to ~1 cm in most
+    runs and fails in some (two vehicles merged at a crossing), so KF ≤ PHD.
+
+    The checks are on the sign of paired means (16 runs: a false alarm needs a
+    ≈ 3.7-standard-error excursion, probability ~1e-4), and on KF ≤ PHD to 1 cm per run
+    in the median (PHD's update reduces to KF's for separated vehicles).
+    """
+    names = ["kf-known-da", "gm-phd", "sme-ukf"]
+    config = ExperimentConfig.build("zhang2016-cv", names, runs=16, seed=seed % 100_000, backend="serial")
+    result = run_experiment(config)
+    total = {n: np.array(per_run_total(result, n)) for n in names}
+    assert all(np.isfinite(v).all() for v in total.values())
+    sme_minus_kf, _ = paired_difference(list(total["sme-ukf"]), list(total["kf-known-da"]))
+    assert sme_minus_kf > 0, "SME beat KF: the paper's claim now reproduces — update the report"
+    assert np.median(total["gm-phd"] - total["kf-known-da"]) > -0.01
+    assert total["gm-phd"].mean() > total["kf-known-da"].mean() - 0.01
