@@ -13,6 +13,11 @@ numbers), so a curve's shape is not hidden under Monte Carlo noise.
 
 Timing: `steps_per_second` = steps processed / seconds spent inside `step`, summed
 over runs — single-process throughput, whatever the backend.
+
+Smoothers: an estimator with a `smooth() -> list[Estimate]` method (batch smoothers,
+DESIGN §4) is asked for it after its last `step`; the smoothed estimates (one per
+frame) replace the per-step ones in the scores, and the time of `smooth` counts as
+step time.
 """
 
 from __future__ import annotations
@@ -225,6 +230,11 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
                 true = recording.truth.origin[frame.k].get("v2f", np.zeros(0, np.int64))
                 correct += int(np.sum(np.asarray(decided) == true))
                 total += int(true.size)
+        smooth = getattr(estimator, "smooth", None)
+        if callable(smooth):  # batch smoother: score the smoothed estimates (module doc)
+            start = time.perf_counter()
+            estimates = list(smooth())
+            spent += time.perf_counter() - start
         errors[spec.name] = evaluate(recording, estimates)
         seconds[spec.name], steps[spec.name] = spent, len(recording.frames)
         if total:

@@ -14,6 +14,7 @@ import numpy as np
 
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import AssociationTruth, Estimator
+from cooploc.estimators.factor_graph import FgIsam2, FgTopologyNew, FgTopologyOld
 from cooploc.estimators.gnss_kf import GnssKF
 from cooploc.estimators.oracle_kf import OracleKF
 from cooploc.params import Params
@@ -21,7 +22,7 @@ from cooploc.types import Setup, Truth
 
 __all__ = ["Estimator", "estimators", "get_estimator", "make_estimator"]
 
-_REGISTRY: dict[str, type] = {cls.name: cls for cls in (GnssKF, OracleKF)}
+_REGISTRY: dict[str, type] = {cls.name: cls for cls in (GnssKF, OracleKF, FgTopologyOld, FgTopologyNew, FgIsam2)}
 
 
 def estimators() -> dict[str, type]:
