@@ -765,6 +765,7 @@ class _BatchGraph:
 
     def __init__(self, setup: Setup, params: FactorGraphParams, rng: np.random.Generator) -> None:
         self.setup, self.params = setup, params
+        _banded_inverse(np.ones((1, 1)))  # compile (or load from cache) here, not in smooth()
         self.data = GraphData(setup, self.kind, params.gap_variance)
         self.filter = _PositionFilter()
         self.estimates = _Estimates(setup)
