@@ -15,13 +15,14 @@ import json
 import numpy as np
 import pytest
 
-from cooploc.estimators import make_estimator
 from cooploc.errors import ConfigError
+from cooploc.estimators import make_estimator
 from cooploc.motion import ConstantVelocity
 from cooploc.reproduce import ReproduceOptions, get_experiment
 from cooploc.scenarios import get_preset
 from cooploc.scenarios.gulati import RADAR_ID, GulatiParams, generate
 from cooploc.sensors import to_local
+
 
 # sampling checks: variance estimated from m draws has relative standard error
 # sqrt(2/m); 5 standard errors make a false failure rarer than 1e-6

@@ -22,7 +22,9 @@ from cooploc.types import Setup, Truth
 
 __all__ = ["Estimator", "estimators", "get_estimator", "make_estimator"]
 
-_REGISTRY: dict[str, type] = {cls.name: cls for cls in (GnssKF, OracleKF, FgTopologyOld, FgTopologyNew, FgIsam2)}
+_REGISTRY: dict[str, type] = {
+    cls.name: cls for cls in (GnssKF, OracleKF, FgTopologyOld, FgTopologyNew, FgIsam2)
+}
 
 
 def estimators() -> dict[str, type]:
