@@ -333,3 +333,18 @@ def test_params_are_validated() -> None:
         FactorGraphParams(solver="ceres")
     with pytest.raises(ConfigError, match="gap_variance"):
         dataclasses.replace(FactorGraphParams(), gap_variance=-1.0)
+
+
+def test_topology_odometry_noise_option(seed: int) -> None:
+    """σ_s² gains N σ_o² s (∂B/∂δ^i = N(p^i − p̄)) beside the radar's 4N σ_r² s:
+    (4 · 0.1 + 1) / (4 · 0.1) = 3.5 with the paper's variances; old factor unchanged."""
+    rec = recording([seed, 81], n=3, steps=10)
+    sigmas = {}
+    for kind in (OLD, NEW):
+        for flag in (False, True):
+            data = GraphData(rec.setup, kind, 900.0, odometry_noise=flag)
+            for frame in rec.frames:
+                data.add_frame(frame)
+            sigmas[kind, flag] = np.concatenate([f.topology_sigma for f in data.frames])
+    np.testing.assert_allclose((sigmas[NEW, True] / sigmas[NEW, False]) ** 2, 3.5, rtol=1e-12)
+    np.testing.assert_array_equal(sigmas[OLD, True], sigmas[OLD, False])
