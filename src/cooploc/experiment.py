@@ -13,6 +13,11 @@ numbers), so a curve's shape is not hidden under Monte Carlo noise.
 
 Timing: `steps_per_second` = steps processed / seconds spent inside `step`, summed
 over runs — single-process throughput, whatever the backend.
+
+Smoothers: an estimator with a `smooth() -> list[Estimate]` method (batch smoothers,
+DESIGN §4) is asked for it after its last `step`; the smoothed estimates (one per
+frame) replace the per-step ones in the scores, and the time of `smooth` counts as
+step time.
 """
 
 from __future__ import annotations
@@ -238,6 +243,11 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
                 track_origins.append(true)
                 dropped += int(estimate.info.get("v2f_discarded", 0))
                 rows += int(true.size)
+        smooth = getattr(estimator, "smooth", None)
+        if callable(smooth):  # batch smoother: score the smoothed estimates (module doc)
+            start = time.perf_counter()
+            estimates = list(smooth())
+            spent += time.perf_counter() - start
         if tracks:
             # score self-named feature tracks as the true feature most of their rows came from
             identity = track_identities(tracks, track_origins)

@@ -14,6 +14,7 @@ import numpy as np
 
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import AssociationTruth, Estimator
+from cooploc.estimators.factor_graph import FgIsam2, FgTopologyNew, FgTopologyOld
 from cooploc.estimators.gm_phd import GMPHD
 from cooploc.estimators.gnss_kf import GnssKF
 from cooploc.estimators.icp import ICP, ICPDALC, ICPDAPF
@@ -37,6 +38,9 @@ _REGISTRY: dict[str, type] = {cls.name: cls for cls in (
     SmePF,
     SmeUKF,
     GMPHD,
+    FgTopologyOld,
+    FgTopologyNew,
+    FgIsam2,
 )}
 
 

@@ -10,6 +10,14 @@ others, and update every vehicle with its own GNSS rows (`subject` = its id). Ro
 an unknown subject (anonymous GNSS) are ignored: this filter cannot associate them. A
 vehicle with no fix this step is only predicted.
 
+Odometry (where the scenario has an ``odometry`` sensor and batch, e.g. Gulati §IV-A,
+the Kalman baseline of eq. 20): the row z_k = H x_k − H x_{k−1} + w relates two
+states, so it is fused exactly by stochastic cloning — the predicted joint of
+[x_k; x_{k−1}] has mean [F m; m] and covariance [[F P Fᵀ + Q, F P], [P Fᵀ, P]]; it is
+updated with H_aug = [H, −H] (Joseph form) and x_{k−1} is marginalised out. This runs
+before the GNSS update, only for vehicles with exactly one odometry row that were
+also present at k − 1. Scenarios without odometry are filtered exactly as before.
+
 All vehicles are filtered together as one batch (`gaussian.kf_predict/kf_update`), so
 a step costs O(n dx³) in NumPy calls whose number does not grow with n.
 """
@@ -42,7 +50,7 @@ class GnssKF:
     """Kalman filter per vehicle from its own GNSS fixes (batched over vehicles)."""
 
     name: ClassVar[str] = "gnss-kf"
-    summary: ClassVar[str] = "non-cooperative Kalman filter per vehicle from GNSS (baseline)"
+    summary: ClassVar[str] = "non-cooperative Kalman filter per vehicle from GNSS (+ odometry), baseline"
     Params: ClassVar[type[Params]] = GnssKFParams
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "froehle2018"
@@ -54,6 +62,8 @@ class GnssKF:
         dx = setup.vehicle_layout.dim
         self._F = setup.vehicle_motion.transition_matrix(setup.dt)
         self._H = setup.sensors["gnss"].observation_matrix(dx) if "gnss" in setup.sensors else None
+        odometry = setup.sensors.get("odometry")
+        self._H_odo = None if odometry is None else odometry.observation_matrix(dx)
         motion = setup.vehicle_motion
         self._Q = None if motion.state_dependent_noise else motion.noise_covariance(setup.dt)
         self._started = False
@@ -62,6 +72,7 @@ class GnssKF:
         born = self.vehicles.sync(frame)
         beliefs = self.vehicles.beliefs
         moving = ~born
+        previous = beliefs
         if self._started and moving.any():
             Q = self._Q if self._Q is not None else (
                 self.setup.vehicle_motion.noise_covariance(self.setup.dt, beliefs.mean[moving]))
@@ -72,6 +83,9 @@ class GnssKF:
                 mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
                 mean[moving], cov[moving] = predicted.mean, predicted.cov
                 beliefs = Gaussians(mean, cov)
+        odometry = frame.batches.get("odometry")
+        if self._started and self._H_odo is not None and odometry is not None and len(odometry):
+            beliefs = self._update_odometry(beliefs, previous, moving, odometry)
         self._started = True
         gnss = frame.batches.get("gnss")
         if gnss is not None and len(gnss) and self._H is not None:
@@ -79,6 +93,31 @@ class GnssKF:
         self.vehicles.beliefs = beliefs
         ids = self.vehicles.ids
         return Estimate(StateSet(ids, beliefs.mean, beliefs.cov))
+
+    def _update_odometry(self, beliefs: Gaussians, previous: Gaussians, moving: np.ndarray,
+                         odometry: Batch) -> Gaussians:
+        """Stochastic-cloning update with odometry rows (module docstring), batched."""
+        ids = self.vehicles.ids
+        pos = np.minimum(np.searchsorted(ids, odometry.subject), max(ids.size - 1, 0))
+        ok = (ids.size > 0) & (ids[pos] == odometry.subject)
+        rows, target = np.flatnonzero(ok), pos[ok]
+        once = np.bincount(target, minlength=ids.size) == 1
+        keep = once[target] & moving[target]
+        rows, target = rows[keep], target[keep]
+        if rows.size == 0:
+            return beliefs
+        dx = beliefs.mean.shape[1]
+        F = self._F
+        m_prev, P_prev = previous.mean[target], previous.cov[target]
+        FP = F @ P_prev                                                # Cov(x_k, x_{k−1})
+        joint = Gaussians(
+            np.concatenate([beliefs.mean[target], m_prev], axis=1),
+            np.block([[beliefs.cov[target], FP], [np.swapaxes(FP, -1, -2), P_prev]]))
+        H_aug = np.concatenate([self._H_odo, -self._H_odo], axis=1)    # z = H x_k − H x_{k−1}
+        updated = kf_update(joint, odometry.z[rows], H_aug, odometry.cov[rows])
+        mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
+        mean[target], cov[target] = updated.mean[:, :dx], updated.cov[:, :dx, :dx]
+        return Gaussians(mean, cov)
 
     def _update(self, beliefs: Gaussians, gnss: Batch) -> Gaussians:
         ids = self.vehicles.ids  # sorted

@@ -55,9 +55,10 @@ class PaperExperiment:
 
 def experiments() -> dict[str, PaperExperiment]:
     """All paper experiments by name."""
-    from cooploc.reproduce import brambilla2020, froehle2018, zhang2016
+    from cooploc.reproduce import brambilla2020, froehle2018, gulati, zhang2016
 
-    return {e.name: e for e in (froehle2018.EXPERIMENT, brambilla2020.EXPERIMENT, zhang2016.EXPERIMENT)}
+    modules = (froehle2018, brambilla2020, zhang2016, gulati)
+    return {m.EXPERIMENT.name: m.EXPERIMENT for m in modules}
 
 
 def get_experiment(name: str) -> PaperExperiment:

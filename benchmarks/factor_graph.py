@@ -1,0 +1,235 @@
+"""Time the Gulati factor graphs: per run and per step, and the topology factor before/after.
+
+    python benchmarks/factor_graph.py                 # full: N = 2, 3, 4, 250 steps
+    python benchmarks/factor_graph.py --quick         # tiny sizes, to check the script
+    python benchmarks/factor_graph.py --out bench.json
+
+Measured (best of `--repeats`, wall clock and process CPU time; the machine may be
+shared, CPU time is the steadier number):
+
+1. `estimators`: each of gnss-kf (Kalman baseline), fg-topology-old, fg-topology-new
+   (steps + `smooth()`), fg-isam2 on gulati-Nv: seconds per run, µs per step, and peak
+   traced memory (tracemalloc, in a separate pass).
+2. `batch_solve` — the topology factor cost in one Levenberg–Marquardt solve of the
+   whole graph (graph already built, same initial guess), for each factor kind:
+   * `gtsam_naive`  — before: GTSAM LM, topology as a Python `CustomFactor` whose error
+     builds NumPy arrays on every call (one GIL-bound call per factor, gtsam #875);
+   * `gtsam_scalar` — GTSAM LM with our `CustomFactor` (plain float arithmetic);
+   * `gtsam_no_topology` — GTSAM LM on the native GPS/odometry factors only (the floor
+     of GTSAM without Python callbacks);
+   * `sparse` — after: our vectorised banded LM (`solver="sparse"`), with and without
+     the marginal covariances. Costs of `sparse` and `gtsam_*` are recorded to show they
+     reach the same minimum.
+3. `horizon`: `gtsam_naive` vs `sparse` LM time against the number of steps.
+4. `isam2`: ms per step of fg-isam2 before (naive CustomFactor, relinearise every step)
+   and after (scalar CustomFactor, GTSAM's default relinearize_skip = 10).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+import tracemalloc
+from collections.abc import Callable
+from contextlib import contextmanager
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cooploc import __version__
+from cooploc.estimators import factor_graph as fg
+from cooploc.estimators import make_estimator
+from cooploc.scenarios import get_preset
+
+ESTIMATORS = ("gnss-kf", "fg-topology-old", "fg-topology-new", "fg-isam2")
+
+
+def recording(n: int, steps: int, seed: int = 0):
+    preset = get_preset(f"gulati-{n}v")
+    return preset.generate(np.random.default_rng(seed), preset.params.with_overrides({"n_steps": steps}))
+
+
+def timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:
+    """(best wall s, best CPU s, last result) of `fn` over `repeats` calls."""
+    wall, cpu, out = np.inf, np.inf, None
+    for _ in range(repeats):
+        w0, c0 = time.perf_counter(), time.process_time()
+        out = fn()
+        wall, cpu = min(wall, time.perf_counter() - w0), min(cpu, time.process_time() - c0)
+    return wall, cpu, out
+
+
+def run_estimator(name: str, rec, params=None) -> list:
+    est = make_estimator(name, rec.setup, params, np.random.default_rng(0))
+    out = [est.step(f) for f in rec.frames]
+    smooth = getattr(est, "smooth", None)
+    return smooth() if callable(smooth) else out
+
+
+def peak_memory(fn: Callable[[], Any]) -> int:
+    tracemalloc.start()
+    fn()
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return int(peak)
+
+
+def naive_topology_factor(kind, keys_t, keys_prev, delta, s, sigma, huber=0.0):
+    """The 'before': a CustomFactor that builds NumPy arrays on every call."""
+    import gtsam
+
+    keys = list(keys_t) + (list(keys_prev) if kind == fg.NEW else [])
+
+    def error(this, values, jacobians):
+        p = np.array([values.atPoint2(k) for k in keys_t])
+        if kind == fg.OLD:
+            J, _ = fg.topology_jacobians(kind, p[None])
+            e = fg.squared_topology(p) - s
+            blocks = list(J[0])
+        else:
+            q = np.array([values.atPoint2(k) for k in keys_prev]) + delta
+            J_cur, J_prev = fg.topology_jacobians(kind, p[None], q[None])
+            e = fg.bilinear_topology(p, q) - s
+            blocks = list(J_cur[0]) + list(J_prev[0])
+        if jacobians is not None:
+            for i, block in enumerate(blocks):
+                jacobians[i] = block[None, :]
+        return np.array([e])
+
+    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(1, sigma), keys, error)
+
+
+@contextmanager
+def naive_factor():
+    original = fg._topology_custom_factor
+    fg._topology_custom_factor = naive_topology_factor
+    try:
+        yield
+    finally:
+        fg._topology_custom_factor = original
+
+
+def built_graph(name: str, rec):
+    est = make_estimator(name, rec.setup, None, np.random.default_rng(0))
+    for f in rec.frames:
+        est.step(f)
+    return est
+
+
+def gtsam_cost(graph, x0: np.ndarray) -> float:
+    """GTSAM LM (default parameters, as our solver's) from x0; the final cost."""
+    import gtsam
+
+    result = gtsam.LevenbergMarquardtOptimizer(graph, fg._gtsam_values(x0),
+                                               gtsam.LevenbergMarquardtParams()).optimize()
+    return float(graph.error(result))
+
+
+def sparse_cost(problem, x0: np.ndarray, covariances: bool = True) -> float:
+    """Our banded LM from x0 (`problem` may be the GraphData: arrays built inside)."""
+    if isinstance(problem, fg.GraphData):
+        problem = fg._Problem.of(problem)
+    return fg.solve_lm(problem, x0, covariances=covariances).cost
+
+
+def batch_solve(rec, repeats: int) -> dict[str, Any]:
+    import gtsam
+
+    out: dict[str, Any] = {}
+    for name in ("fg-topology-old", "fg-topology-new"):
+        est = built_graph(name, rec)
+        data, x0 = est.data, np.concatenate(est.initial)
+        row: dict[str, Any] = {"topology_factors": data.n_topology, "variables": data.n_vars}
+        with naive_factor():
+            graph = fg.gtsam_graph(data)
+        row["gtsam_naive"] = _solve_row(partial(gtsam_cost, graph, x0), repeats)
+        graph = fg.gtsam_graph(data)
+        row["gtsam_scalar"] = _solve_row(partial(gtsam_cost, graph, x0), repeats)
+        native = gtsam.NonlinearFactorGraph()
+        for i in range(graph.size()):
+            if not isinstance(graph.at(i), gtsam.CustomFactor):
+                native.add(graph.at(i))
+        row["gtsam_no_topology"] = _solve_row(partial(gtsam_cost, native, x0), repeats)
+        problem = fg._Problem.of(data)
+        row["sparse"] = _solve_row(partial(sparse_cost, problem, x0), repeats)
+        row["sparse_without_covariances"] = _solve_row(
+            partial(sparse_cost, problem, x0, covariances=False), repeats)
+        row["sparse_including_graph_arrays"] = _solve_row(partial(sparse_cost, data, x0), repeats)
+        row["speedup_cpu"] = row["gtsam_naive"]["cpu_s"] / row["sparse"]["cpu_s"]
+        out[name] = row
+    return out
+
+
+def _solve_row(fn: Callable[[], float], repeats: int) -> dict[str, float]:
+    wall, cpu, cost = timed(fn, repeats)
+    return {"wall_s": wall, "cpu_s": cpu, "cost": cost}
+
+
+def isam2(rec, repeats: int) -> dict[str, Any]:
+    steps = len(rec.frames)
+    out = {}
+    with naive_factor():
+        wall, cpu, _ = timed(lambda: run_estimator("fg-isam2", rec, fg.ISAM2Params(relinearize_skip=1)),
+                             repeats)
+    out["before_naive_factor_skip1"] = {"ms_per_step_wall": 1e3 * wall / steps,
+                                        "ms_per_step_cpu": 1e3 * cpu / steps}
+    wall, cpu, _ = timed(lambda: run_estimator("fg-isam2", rec), repeats)
+    out["after"] = {"ms_per_step_wall": 1e3 * wall / steps, "ms_per_step_cpu": 1e3 * cpu / steps}
+    return out
+
+
+def main(argv: list[str] | None = None) -> dict[str, Any]:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="tiny sizes (checks the script)")
+    parser.add_argument("--repeats", type=int, default=None)
+    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "factor_graph.json")
+    args = parser.parse_args(argv)
+    counts = (2,) if args.quick else (2, 3, 4)
+    steps = 30 if args.quick else 250
+    repeats = args.repeats or (1 if args.quick else 3)
+    horizons = (20, 40) if args.quick else (125, 250, 500, 1000)
+
+    result: dict[str, Any] = {
+        "cooploc_version": __version__, "python": sys.version.split()[0],
+        "numpy": np.__version__, "platform": platform.platform(), "cpu_count": os.cpu_count(),
+        "steps": steps, "repeats": repeats, "quick": args.quick,
+        "estimators": {}, "batch_solve": {}, "isam2": {}, "horizon": {},
+    }
+    fg._banded_inverse(np.ones((1, 1)))  # numba compile outside the timings
+    for n in counts:
+        rec = recording(n, steps)
+        rows = {}
+        for name in ESTIMATORS:
+            wall, cpu, _ = timed(partial(run_estimator, name, rec), repeats)
+            rows[name] = {"s_per_run_wall": wall, "s_per_run_cpu": cpu,
+                          "us_per_step_wall": 1e6 * wall / steps, "us_per_step_cpu": 1e6 * cpu / steps,
+                          "steps_per_second": steps / wall,
+                          "peak_bytes": peak_memory(partial(run_estimator, name, rec))}
+        result["estimators"][f"{n}v"] = rows
+        result["batch_solve"][f"{n}v"] = batch_solve(rec, repeats)
+        result["isam2"][f"{n}v"] = isam2(rec, repeats)
+    for T in horizons:
+        rec = recording(2, T)
+        est = built_graph("fg-topology-new", rec)
+        data, x0 = est.data, np.concatenate(est.initial)
+        with naive_factor():
+            graph = fg.gtsam_graph(data)
+        problem = fg._Problem.of(data)
+        result["horizon"][str(T)] = {
+            "gtsam_naive": _solve_row(partial(gtsam_cost, graph, x0), repeats),
+            "sparse": _solve_row(partial(sparse_cost, problem, x0), repeats),
+        }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    print(json.dumps({k: result[k] for k in ("batch_solve", "isam2")}, indent=1)[:3000])
+    return result
+
+
+if __name__ == "__main__":
+    main()

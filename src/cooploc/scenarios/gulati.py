@@ -1,0 +1,180 @@
+"""Gulati et al. (IV 2017), §II and §IV-A: N vehicles, GPS, odometry and a road-side radar.
+
+Model (paper §II and §IV-A)
+---------------------------
+- N vehicles (2, 3 or 4) on a plane, 250 steps of T = 1 s.
+- GPS of every vehicle: z = p + w, w ~ N(0, diag(9, 9)) m² (eq. 6).
+- Odometry of every vehicle: the displacement since the previous step in the global
+  frame, z_k = p_k − p_{k−1} + w, w ~ N(0, diag(1, 1)) m² (eqs. 4, 9–10).
+- One infrastructure radar with an unknown pose (position t, yaw θ): it reports every
+  vehicle in its own frame, z = R(θ)ᵀ(p − t) + w, w ~ N(0, diag(0.1, 0.1)) m², as
+  anonymous rows in random order (§II: no identification mechanism).
+- No clutter and no missed detections (§II, §IV-A).
+
+Choices the paper leaves open (parameters of `GulatiParams`)
+------------------------------------------------------------
+- Trajectories: the paper says only "random trajectory". Each vehicle follows the
+  constant-velocity model with white acceleration noise of density
+  `noise_density` = 1 m²/s³ (`motion.ConstantVelocity`; eq. 20 is this model, written
+  for T = 1 in its discrete-acceleration form). Vehicles start at independent
+  positions p_0 ~ N(0, `start_position_std`² I) with `start_position_std` = 50 m and
+  velocities v_0 ~ N(0, `start_velocity_std`² I) with `start_velocity_std` = 5 m/s, so
+  that they are tens of metres apart and their trajectories bend randomly.
+- Radar pose: position uniform in [−`radar_extent`, `radar_extent`]² (100 m) and yaw
+  uniform in [−π, π), drawn anew every run and kept only in `Truth.sensor_poses`.
+- Estimators get the start distribution as the vehicle prior (`Setup.vehicle_prior`).
+- The state is [p_x, p_y, v_x, v_y] (the Kalman filter of eq. 20 needs the velocity);
+  the factor graphs estimate positions.
+- Missed detections and clutter (the paper's future work): `detection_probability`
+  thins radar rows; `clutter_rate` adds Poisson(λ) rows per step, uniform over a
+  square of half-width `clutter_extent` around the radar, in its frame.
+
+Ids: vehicles 0..N−1, radar 100. Batch kinds: ``gnss``, ``odometry`` (from step 1),
+``radar``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cooploc.motion import ConstantVelocity, simulate
+from cooploc.params import Params, require
+from cooploc.scenarios import Preset
+from cooploc.sensors import GnssPosition, InfrastructureRadar, Odometry
+from cooploc.types import Batch, Frame, Recording, Setup, StateLayout, StateSet, Truth
+
+__all__ = ["PRESETS", "RADAR_ID", "GulatiParams", "generate"]
+
+RADAR_ID = 100
+
+
+@dataclass(frozen=True)
+class GulatiParams(Params):
+    """Parameters of the Gulati scenario; defaults are the paper's §IV-A (2 vehicles).
+
+    Attributes
+    ----------
+    n_vehicles : N.
+    n_steps : number of steps (paper: 250).
+    dt : T in s (paper: 1).
+    gnss_variance, odometry_variance, radar_variance : per-axis variances in m²
+        (paper: 9, 1, 0.1).
+    noise_density : r of the CV model of the trajectories, m²/s³ (not in the paper).
+    start_position_std, start_velocity_std : spread of the start (m, m/s).
+    radar_extent : half-width in m of the square the radar position is drawn from.
+    detection_probability : P_D of each radar row (paper: 1).
+    clutter_rate : mean clutter rows per radar scan (paper: 0).
+    clutter_extent : half-width in m of the clutter square (radar frame).
+    """
+
+    n_vehicles: int = 2
+    n_steps: int = 250
+    dt: float = 1.0
+    gnss_variance: float = 9.0
+    odometry_variance: float = 1.0
+    radar_variance: float = 0.1
+    noise_density: float = 1.0
+    start_position_std: float = 50.0
+    start_velocity_std: float = 5.0
+    radar_extent: float = 100.0
+    detection_probability: float = 1.0
+    clutter_rate: float = 0.0
+    clutter_extent: float = 200.0
+
+    @classmethod
+    def owner(cls) -> str:
+        return "gulati"
+
+    def validate(self) -> None:
+        o = self.owner()
+        require(self.n_vehicles >= 1, o, "n_vehicles", self.n_vehicles, "be >= 1")
+        require(self.n_steps >= 1, o, "n_steps", self.n_steps, "be >= 1")
+        for key in ("dt", "gnss_variance", "odometry_variance", "radar_variance",
+                    "start_position_std", "start_velocity_std", "radar_extent", "clutter_extent"):
+            value = getattr(self, key)
+            require(np.isfinite(value) and value > 0, o, key, value, "be > 0")
+        require(np.isfinite(self.noise_density) and self.noise_density >= 0, o, "noise_density",
+                self.noise_density, "be >= 0")
+        require(0 < self.detection_probability <= 1, o, "detection_probability",
+                self.detection_probability, "lie in (0, 1]")
+        require(np.isfinite(self.clutter_rate) and self.clutter_rate >= 0, o, "clutter_rate",
+                self.clutter_rate, "be >= 0")
+
+
+def generate(params: GulatiParams, rng: np.random.Generator) -> Recording:
+    """Simulate one run of the scenario."""
+    N, T, dt = params.n_vehicles, params.n_steps, params.dt
+    motion = ConstantVelocity(params.noise_density)
+    ids = np.arange(N, dtype=np.int64)
+    # independent streams: trajectories, radar pose, and each sensor's noise
+    rng_motion, rng_pose, rng_gnss, rng_odometry, rng_radar = rng.spawn(5)
+    start_cov = np.diag([params.start_position_std**2] * 2 + [params.start_velocity_std**2] * 2)
+    x0 = rng_motion.multivariate_normal(np.zeros(4), start_cov, size=N)
+    states = simulate(motion, x0, T, dt, rng_motion)                            # (T, N, 4)
+    pose = np.r_[rng_pose.uniform(-params.radar_extent, params.radar_extent, 2),
+                 rng_pose.uniform(-np.pi, np.pi)]
+
+    gnss = GnssPosition(default_cov=params.gnss_variance * np.eye(2))
+    odometry = Odometry(default_cov=params.odometry_variance * np.eye(2))
+    radar = InfrastructureRadar(default_cov=params.radar_variance * np.eye(2))
+    extent = params.clutter_extent
+    region = np.array([[-extent, extent], [-extent, extent]])
+
+    frames, origins = [], []
+    for k in range(T):
+        batches = {"gnss": gnss.measure(ids, states[k], rng_gnss)}
+        origin = {"gnss": ids}
+        if k > 0:
+            batches["odometry"] = odometry.measure(ids, states[k], states[k - 1], rng_odometry)
+        else:
+            batches["odometry"] = Batch.empty(2)
+        origin["odometry"] = ids if k > 0 else np.zeros(0, np.int64)
+        batches["radar"], origin["radar"] = radar.measure(
+            RADAR_ID, pose, ids, states[k], rng_radar,
+            detection_probability=params.detection_probability, clutter_rate=params.clutter_rate,
+            clutter_region=region)
+        frames.append(Frame(k, k * dt, ids, batches))
+        origins.append(origin)
+
+    setup = Setup(
+        dt=dt,
+        n_steps=T,
+        vehicle_layout=StateLayout.position_velocity(2),
+        vehicle_motion=motion,
+        vehicle_prior=StateSet(ids, np.zeros((N, 4)), np.repeat(start_cov[None], N, 0)),
+        sensors={"gnss": gnss, "odometry": odometry, "radar": radar},
+        detection_probability=params.detection_probability,
+        clutter_rate=params.clutter_rate,
+        clutter_region=region if params.clutter_rate > 0 else None,
+        infrastructure_ids=(RADAR_ID,),
+        description=f"Gulati 2017 §IV-A: {N} vehicles, GPS + odometry + anonymous radar, "
+                    f"{T} steps of {dt} s",
+    )
+    truth = Truth(
+        vehicle_ids=ids,
+        vehicle_states=states,
+        vehicle_present=np.ones((T, N), dtype=bool),
+        feature_ids=np.zeros(0, np.int64),
+        feature_states=np.zeros((T, 0, 4)),
+        feature_present=np.zeros((T, 0), dtype=bool),
+        origin=origins,
+        sensor_poses=pose[None],
+    )
+    return Recording(setup, frames, truth)
+
+
+PRESETS = tuple(
+    Preset(
+        name=f"gulati-{n}v",
+        params=GulatiParams(n_vehicles=n),
+        generator=generate,
+        summary=f"Gulati 2017 §IV-A: {n} vehicles, GPS 9 m², odometry 1 m², radar 0.1 m² "
+                "(unknown pose), 250 steps",
+        doc=f"Reproduces the {n}-vehicle row of Tables I–II"
+            + (" and Figs. 3–4" if n == 2 else " and Figs. 5–6" if n == 4 else "")
+            + " of Gulati et al. (IV 2017).",
+    )
+    for n in (2, 3, 4)
+)
