@@ -16,12 +16,13 @@ from cooploc.errors import ConfigError
 from cooploc.estimators.base import AssociationTruth, Estimator
 from cooploc.estimators.gnss_kf import GnssKF
 from cooploc.estimators.oracle_kf import OracleKF
+from cooploc.estimators.plbp import PLBP, PriorLBP
 from cooploc.params import Params
 from cooploc.types import Setup, Truth
 
 __all__ = ["Estimator", "estimators", "get_estimator", "make_estimator"]
 
-_REGISTRY: dict[str, type] = {cls.name: cls for cls in (GnssKF, OracleKF)}
+_REGISTRY: dict[str, type] = {cls.name: cls for cls in (GnssKF, OracleKF, PLBP, PriorLBP)}
 
 
 def estimators() -> dict[str, type]:
