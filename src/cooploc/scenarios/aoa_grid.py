@@ -92,8 +92,8 @@ class AoaGridParams(Params):
 
     n_vehicles: int = 51
     n_anchors: int = 6
-    grid_size: float = 60.0
-    block_size: float = 60.0
+    grid_size: float = 50.0
+    block_size: float = 50.0
     lanes: int = 3
     lane_width: float = 3.5
     communication_radius: float = 30.0
@@ -105,9 +105,9 @@ class AoaGridParams(Params):
     anchor_heading_std: float = 0.01
     n_steps: int = 1
     dt: float = 0.1
-    speed_min: float = 5.0
-    speed_max: float = 15.0
-    motion_position_density: float = 22.5
+    speed_min: float = 1.0
+    speed_max: float = 5.0
+    motion_position_density: float = 2.5
     motion_heading_density: float = 0.01
 
     @classmethod
@@ -144,7 +144,8 @@ def anchor_ids(params: AoaGridParams) -> np.ndarray:
 def place_vehicles(params: AoaGridParams, rng: np.random.Generator) -> np.ndarray:
     """States (n, 3) uniform along the streets, heading along the street, right-hand lane."""
     n = params.n_vehicles
-    lines = np.arange(0.0, params.grid_size + 1e-9, params.block_size)     # street centre lines
+    # centre lines through the middle of each block-size strip of the square
+    lines = (np.arange(int(params.grid_size // params.block_size)) + 0.5) * params.block_size
     vertical = rng.random(n) < 0.5                                         # N–S (x = const) or E–W
     line = lines[rng.integers(0, lines.size, n)]
     along = params.grid_size * rng.random(n)
