@@ -115,7 +115,8 @@ def test_vehicles_drive_in_lanes_along_the_streets(seed: int) -> None:
     assert on_axis.all() and np.all((heading >= -np.pi) & (heading < np.pi))
     # distance to the street's centre line along the cross axis is (l + ½) lane widths
     cross = np.where(np.isclose(np.abs(np.cos(heading)), 1.0), states[0, :, 1], states[0, :, 0])
-    offset = np.abs(cross - np.round(cross / params.block_size) * params.block_size)
+    centre = (np.floor(cross / params.block_size) + 0.5) * params.block_size   # mid-block lines
+    offset = np.abs(cross - centre)
     lanes = offset / params.lane_width - 0.5
     np.testing.assert_allclose(lanes, np.round(lanes), atol=1e-9)
     assert lanes.max() <= params.lanes - 1
