@@ -7,10 +7,11 @@ and Posterior Linearization" (`papers/002_dfdb230c2e4252cd.txt`, model restated 
 Model
 -----
 - Vehicles with state [p_x, p_y, α] (m, m, rad) on a square grid of streets
-  (`grid_size` across, a street every `block_size` metres in both directions); each
-  vehicle drives along its street in one of the two directions, in the lane on the
-  right (`lane_offset` from the centre line), so its heading is along the street:
-  0, π/2, −π or −π/2.
+  (`grid_size` across, a street through the middle of every `block_size` strip, both
+  ways), placed uniformly along the streets; each drives in one of the two directions
+  in one of its `lanes` lanes on the right of the centre line, so its heading is along
+  the street: 0, π/2, −π or −π/2. Default: one intersection of two 6-lane avenues
+  (see below).
 - Prior (eq. 1): μ_i ~ N(x_i, Σ_i), Σ_i = diag(σ_p², σ_p², σ_α²), given to estimators
   in `Setup.vehicle_prior`. Anchors have σ_p = 0.1 m, σ_α = 0.01 rad (notes, *chosen*).
 - Links: every pair within R_c (`communication_radius`), `Frame.links`.
@@ -29,14 +30,24 @@ street for `n_steps` steps of `dt`; from step 1 on, every vehicle also gets a fr
 fix of [p_x, p_y, α] (kind `"gnss"`, `GnssPosition` over all three components) with
 the prior's covariance, so that each step's prior is the previous posterior predicted
 by the motion model (`motion.RandomWalk`, q_p = `motion_position_density`,
-q_α = `motion_heading_density`) and updated with the fix.
+q_α = `motion_heading_density`) and updated with the fix. Speeds are those of congested
+traffic (1–5 m/s) so that the intersection stays dense over the run, and
+q_p = speed_max² ΔT makes one step's random-walk spread match the largest displacement.
 
 Choices the paper leaves open
 -----------------------------
-- The map: the paper uses a piece of central Manhattan (51 vehicles within a zoom-18
-  map, Fig. 3) that is not available; we use a 200 m × 200 m grid with a street every
-  50 m (5 streets each way, 2 km of road, ≈ 40 m of road per vehicle), vehicles placed
-  uniformly along the streets, which gives every vehicle ≈ 3 neighbours within 30 m.
+- The map: the paper uses a piece of central Manhattan (51 vehicles on a zoom-18 map,
+  Fig. 3) that is not available. Streets run through the middle of each
+  `block_size` strip of a `grid_size` square, `lanes` lanes per direction. Its own
+  statements imply a compact, dense scene: RMSE falls with R_c "up to the point where
+  all vehicles are in each others' communication range" (≈ 30–50 m), and raising σ_p
+  from 0 to 10 m costs "less than 2 m", i.e. the position RMSE at σ_p = 5 m is below
+  2 m. The default is therefore one Manhattan intersection in congested traffic: a
+  50 m × 50 m square with one 6-lane avenue each way (3 lanes per direction, 3.5 m
+  lanes), 51 vehicles along its four 25 m arms (≈ 12 m of lane per vehicle), every
+  vehicle with ≈ 40 links. Sparser grids are a parameter away (e.g. `grid_size=200`,
+  `block_size=50`: 4 × 4 streets); accuracy falls quickly with density (see the
+  reproduce report).
 - Anchors are vehicles: ids 0 … `n_anchors` − 1 (their positions are random like the
   others'), estimated like every vehicle but with the tight prior. `anchor_ids(params)`
   names them; the reproduce report scores non-anchor vehicles only, while `cooploc run`
