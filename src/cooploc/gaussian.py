@@ -16,18 +16,35 @@ Information form: Λ = P⁻¹, η = P⁻¹ m. A measurement z = H x + w, w ~ N(0
 Hᵀ R⁻¹ H to Λ and Hᵀ R⁻¹ z to η — the product of Gaussian messages is a sum, which is
 why Gaussian belief propagation works in this form.
 
-Complexity: O(n (dx³ + dz³)) per call.
+Statistical linear regression (García-Fernández et al., IEEE TSP 2015, the posterior
+linearization filter): the best affine fit z ≈ A x + c + e, e ~ N(0, Ω), of a
+nonlinear h(x) under x ~ N(x̄, P), computed with sigma points χ⁽ˢ⁾ and weights w⁽ˢ⁾:
+
+    z̄ = Σ w ζ,  Ψ = Σ w (χ − x̄)(ζ − z̄)ᵀ,  Φ = Σ w (ζ − z̄)(ζ − z̄)ᵀ,   ζ = h(χ)
+    A = Ψᵀ P⁻¹,  c = z̄ − A x̄,  Ω = Φ − A P Aᵀ
+
+(eqs. 16–22 of 002_dfdb230c2e4252cd.txt, Appendix A). Angular outputs are first put
+on the branch nearest a reference angle z (eq. 15): ζ̃ = z + mod(ζ − z + π, 2π) − π,
+so that the regression never straddles the ±π cut (Crouse 2015). Sigma points:
+`"unscented"` (central weight w₀, default 1/3, spread sqrt(d / (1 − w₀))) or
+`"cubature"` (2d points ± sqrt(d) columns of a Cholesky factor, equal weights). Both
+integrate polynomials of degree 3 exactly, so an affine h is recovered with Ω = 0.
+
+Complexity: O(n (dx³ + dz³)) per call; SLR O(n (S d dz + d³)) with S = 2d (+1) points.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from cooploc.errors import InvalidInputError
 from cooploc.types import FloatArray
 
 __all__ = [
+    "SIGMA_POINT_METHODS",
     "Gaussians",
     "block_diagonal",
     "from_information",
@@ -35,11 +52,14 @@ __all__ = [
     "information_update",
     "kf_predict",
     "kf_update",
+    "sigma_points",
+    "statistical_linear_regression",
     "symmetrize",
     "to_information",
 ]
 
 _LOG_2PI = np.log(2.0 * np.pi)
+SIGMA_POINT_METHODS = ("unscented", "cubature")
 
 
 @dataclass(frozen=True, slots=True)
@@ -154,3 +174,72 @@ def gaussian_logpdf(residual: FloatArray, cov: FloatArray) -> FloatArray:
     log_det = 2.0 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(-1)
     d = residual.shape[-1]
     return -0.5 * (d * _LOG_2PI + log_det + (white**2).sum(-1))
+
+
+def sigma_points(mean: FloatArray, cov: FloatArray, method: str = "unscented",
+                 central_weight: float = 1.0 / 3.0) -> tuple[FloatArray, FloatArray]:
+    """Sigma points of a batch of Gaussians: points (n, S, d) and weights (S,).
+
+    `"unscented"`: χ⁰ = x̄ with weight w₀ = `central_weight`, χ^{±k} = x̄ ± sqrt(d/(1−w₀)) L_k
+    with weights (1 − w₀)/(2d) (Julier & Uhlmann 2004); `"cubature"`: χ^{±k} = x̄ ± sqrt(d) L_k,
+    weights 1/(2d) (Arasaratnam & Haykin 2009). L is the lower Cholesky factor of P, L_k
+    its k-th column. All weights are positive, so the weighted covariances are PSD.
+    """
+    if method not in SIGMA_POINT_METHODS:
+        raise InvalidInputError(f"sigma point method must be one of {SIGMA_POINT_METHODS}, got {method!r}")
+    d = mean.shape[-1]
+    L = np.linalg.cholesky(cov)                                    # (n, d, d)
+    columns = np.swapaxes(L, -1, -2)                               # (n, d, d): row k = L_k
+    if method == "cubature":
+        spread, weights = np.sqrt(d), np.full(2 * d, 1.0 / (2 * d))
+        offsets = np.concatenate([columns, -columns], axis=-2)
+    else:
+        if not 0.0 <= central_weight < 1.0:
+            raise InvalidInputError(f"central_weight must lie in [0, 1), got {central_weight!r}")
+        spread = np.sqrt(d / (1.0 - central_weight))
+        weights = np.r_[central_weight, np.full(2 * d, (1.0 - central_weight) / (2 * d))]
+        offsets = np.concatenate([np.zeros_like(columns[..., :1, :]), columns, -columns], axis=-2)
+    return mean[..., None, :] + spread * offsets, weights
+
+
+def statistical_linear_regression(
+    mean: FloatArray,
+    cov: FloatArray,
+    h: Callable[[FloatArray], FloatArray],
+    *,
+    method: str = "unscented",
+    angular: Sequence[bool] | None = None,
+    reference: FloatArray | None = None,
+    central_weight: float = 1.0 / 3.0,
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """SLR of h w.r.t. N(mean, cov): (A (n, dz, d), c (n, dz), Ω (n, dz, dz)).
+
+    Parameters
+    ----------
+    mean : (n, d), cov : (n, d, d) the Gaussians to linearize with respect to.
+    h : vectorised function, points (..., d) → values (..., dz).
+    method : `"unscented"` or `"cubature"` sigma points.
+    angular : (dz,) which outputs are angles in rad (default: none).
+    reference : (n, dz) the angle each angular output is put near (eq. 15), e.g. the
+        measurement; default h(mean).
+    central_weight : w₀ of the unscented points.
+
+    Returns A, c, Ω with z ≈ A x + c + e, e ~ N(0, Ω) (eqs. 17–22).
+    """
+    chi, w = sigma_points(mean, cov, method, central_weight)      # (n, S, d), (S,)
+    zeta = np.asarray(h(chi), dtype=float)                         # (n, S, dz)
+    if angular is not None and np.any(angular):
+        ang = np.asarray(angular, dtype=bool)
+        ref = np.asarray(h(mean), dtype=float) if reference is None else np.asarray(reference, float)
+        # eq. (15): ζ̃ = z + mod(ζ − z + π, 2π) − π on the angular outputs
+        branch = ref[..., None, :] + np.mod(zeta - ref[..., None, :] + np.pi, 2.0 * np.pi) - np.pi
+        zeta = np.where(ang, branch, zeta)
+    z_mean = np.einsum("s,nsk->nk", w, zeta)                      # eq. (20): z̄ = Σ w ζ̃
+    dchi_w = np.swapaxes(chi - mean[..., None, :], -1, -2) * w     # (n, d, S): w (χ − x̄)
+    dzeta = zeta - z_mean[..., None, :]                            # (n, S, dz)
+    Psi = dchi_w @ dzeta                                           # eq. (21): Ψ (n, d, dz)
+    Phi = (np.swapaxes(dzeta, -1, -2) * w) @ dzeta                 # eq. (22): Φ (n, dz, dz)
+    A = np.swapaxes(np.linalg.solve(cov, Psi), -1, -2)             # eq. (17): A = Ψᵀ P⁻¹ (P symmetric)
+    c = z_mean - (A @ mean[..., None])[..., 0]                     # eq. (18): c = z̄ − A x̄
+    Omega = symmetrize(Phi - A @ cov @ np.swapaxes(A, -1, -2))     # eq. (19): Ω = Φ − A P Aᵀ
+    return A, c, Omega

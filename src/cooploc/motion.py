@@ -18,6 +18,10 @@ al. 2018, eq. (28): A = [[1, ΔT], [0, 1]] ⊗ I_2.
   x_k = F x_{k-1} + G n_k, G = [ΔT; 1] ⊗ I_2, n_k ~ N(0, R(ψ) diag(σ²_v,∥, σ²_v,⊥) R(ψ)ᵀ).
   With σ = 0 it is the static (or constant-velocity) feature of §V-A.
 
+- `RandomWalk` — pose random walk on [p_x, p_y, α] (m, m, rad): F = I, Q = ΔT diag(q_p,
+  q_p, q_α). The prediction model of the `aoa-grid` tracking option (issue 7), where
+  the state holds no velocity.
+
 Simulation helpers sample forward (`simulate`) and backward in time
 (`simulate_backward`: x_{k-1} = F⁻¹(x_k − w_k), so the forward relation holds exactly
 for the drawn noise), as Williams 2015 §VI does for targets that cross at mid-run.
@@ -42,6 +46,7 @@ __all__ = [
     "ConstantTurn",
     "ConstantVelocity",
     "MotionModel",
+    "RandomWalk",
     "motion_from_dict",
     "sample_gaussian",
     "simulate",
@@ -248,7 +253,38 @@ def _turned_noise(G: FloatArray, sigma_along: float, sigma_cross: float,
     return 0.5 * (Q + Q.transpose(0, 2, 1))
 
 
-_MODELS = (ConstantVelocity, ConstantTurn, CVAccelerationInput, CVVelocityNoise)
+@dataclass(frozen=True, slots=True)
+class RandomWalk(_Serialisable):
+    """Random walk of a pose [p_x, p_y, α]: x_k = x_{k-1} + w_k, w_k ~ N(0, ΔT diag(q_p, q_p, q_α)).
+
+    Parameters
+    ----------
+    position_density : q_p in m²/s (per axis).
+    heading_density : q_α in rad²/s.
+    """
+
+    position_density: float
+    heading_density: float
+    name: ClassVar[str] = "random-walk"
+    dim: ClassVar[int] = 3
+    state_dependent_noise: ClassVar[bool] = False
+
+    def __post_init__(self) -> None:
+        for key in ("position_density", "heading_density"):
+            value = getattr(self, key)
+            if not np.isfinite(value) or value < 0:
+                raise InvalidInputError(f"RandomWalk.{key} must be >= 0, got {value!r}")
+
+    def transition_matrix(self, dt: float) -> FloatArray:
+        _check_dt(dt)
+        return np.eye(3)
+
+    def noise_covariance(self, dt: float, states: FloatArray | None = None) -> FloatArray:
+        q = self.position_density
+        return _check_dt(dt) * np.diag([q, q, self.heading_density])
+
+
+_MODELS = (ConstantVelocity, ConstantTurn, CVAccelerationInput, CVVelocityNoise, RandomWalk)
 
 
 def motion_from_dict(data: Mapping[str, Any]) -> MotionModel:

@@ -23,6 +23,14 @@
   frame (Gulati eq. 4 for the constant-velocity model): z_k = H x_k − H x_{k−1} + w,
   w ~ N(0, W_s). A vehicle that enters at step k has no odometry row at k.
 
+- `AngleOfArrival` — angle of arrival of a neighbour's V2V signal relative to the
+  receiver's heading (issue 7, `papers/plbp_model_notes.md` "Model"):
+  θ_{i←j} = wrap(atan2(p_{j,y} − p_{i,y}, p_{j,x} − p_{i,x}) − α_i) + w, w ~ N(0, σ_θ²),
+  measured by two side-mounted linear arrays (normals at ±π/2 relative to the heading)
+  that each see ±Δ around their normal; the transmitter's identity is known (it rides
+  on the V2V message): `sensor` = receiver id, `subject` = transmitter id. The reading
+  is wrapped to [−π, π).
+
 Every simulator is vectorised over entities (and vehicle × feature pairs) and takes
 the random generator as an argument.
 """
@@ -42,6 +50,7 @@ from cooploc.motion import sample_gaussian
 from cooploc.types import Batch, FloatArray, IntArray, check_covariances, float_array
 
 __all__ = [
+    "AngleOfArrival",
     "AnonymousPosition",
     "GnssPosition",
     "InfrastructureRadar",
@@ -391,7 +400,132 @@ class Odometry(_PerEntityCovariance):
         return Batch(z, cov, ids, ids)
 
 
-_SENSORS = (GnssPosition, RelativePosition, AnonymousPosition, InfrastructureRadar, Odometry)
+def _wrap(angle: npt.ArrayLike) -> FloatArray:
+    """Angles wrapped to [−π, π) (the convention of `cooploc.metrics.wrap_angle`)."""
+    return (np.asarray(angle, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+@dataclass(frozen=True)
+class AngleOfArrival:
+    """AoA of a neighbour's signal relative to the receiver's heading, two side arrays.
+
+    θ_{i←j} = wrap(atan2(Δp_y, Δp_x) − α_i) + w, Δp = p_j − p_i, w ~ N(0, σ²_θ), measured
+    only where |wrap(θ − π/2)| ≤ Δ or |wrap(θ + π/2)| ≤ Δ (left or right array).
+
+    Attributes
+    ----------
+    covariances : receiver id → (1, 1) noise variance σ²_θ in rad², for receivers
+        whose arrays differ from the default.
+    default_cov : (1, 1) σ²_θ of every other receiver.
+    state_indices : indices of (p_x, p_y, α) in the vehicle state.
+    field_of_view : Δ in rad, half-width of each array's field of view (≤ π/2; π/2
+        sees all around).
+    """
+
+    name: ClassVar[str] = "angle-of-arrival"
+    covariances: Mapping[int, FloatArray] = field(default_factory=dict)
+    default_cov: FloatArray | None = None
+    state_indices: tuple[int, ...] = (0, 1, 2)
+    field_of_view: float = np.pi / 3
+
+    def __post_init__(self) -> None:
+        covs = {}
+        for key, value in dict(self.covariances).items():
+            cov = float_array(f"AngleOfArrival.covariances[{key}]", value, (1, 1))
+            check_covariances(f"AngleOfArrival.covariances[{key}]", cov[None])
+            covs[int(key)] = cov
+        object.__setattr__(self, "covariances", covs)
+        if self.default_cov is not None:
+            cov = float_array("AngleOfArrival.default_cov", self.default_cov, (1, 1))
+            check_covariances("AngleOfArrival.default_cov", cov[None])
+            object.__setattr__(self, "default_cov", cov)
+        indices = tuple(int(i) for i in self.state_indices)
+        if len(indices) != 3 or len(set(indices)) != 3 or min(indices) < 0:
+            raise InvalidInputError(
+                f"AngleOfArrival.state_indices must be 3 distinct indices (p_x, p_y, α), got {indices}"
+            )
+        object.__setattr__(self, "state_indices", indices)
+        fov = float(self.field_of_view)
+        if not 0.0 < fov <= np.pi / 2:
+            raise InvalidInputError(
+                f"AngleOfArrival.field_of_view must lie in (0, π/2] rad, got {self.field_of_view!r}"
+            )
+        object.__setattr__(self, "field_of_view", fov)
+
+    def variance_of(self, receivers: npt.ArrayLike) -> FloatArray:
+        """(n, 1, 1) noise variance of each receiver id."""
+        receivers = np.asarray(receivers, dtype=np.int64)
+        if not self.covariances:  # the usual case: one variance for everybody
+            if self.default_cov is None:
+                raise InvalidInputError("AngleOfArrival has no default_cov and no per-receiver ones")
+            return np.broadcast_to(self.default_cov, (receivers.size, 1, 1)).copy()
+        out = np.empty((receivers.size, 1, 1))
+        for r, entity in enumerate(receivers.tolist()):
+            cov = self.covariances.get(entity, self.default_cov)
+            if cov is None:
+                raise InvalidInputError(f"AngleOfArrival has no variance for receiver {entity}")
+            out[r] = cov
+        return out
+
+    def bearing(self, receiver: FloatArray, transmitter: FloatArray) -> FloatArray:
+        """Noise-free θ_{i←j} (...,) for receiver (..., dx) and transmitter (..., dx) states."""
+        ix, iy, ia = self.state_indices
+        dx = transmitter[..., ix] - receiver[..., ix]
+        dy = transmitter[..., iy] - receiver[..., iy]
+        return _wrap(np.arctan2(dy, dx) - receiver[..., ia])
+
+    def in_view(self, theta: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+        """Whether relative angles θ fall in the left (+π/2) or right (−π/2) array's view."""
+        theta = np.asarray(theta, dtype=float)
+        return ((np.abs(_wrap(theta - np.pi / 2)) <= self.field_of_view)
+                | (np.abs(_wrap(theta + np.pi / 2)) <= self.field_of_view))
+
+    def measure(self, ids: npt.ArrayLike, states: FloatArray, links: npt.ArrayLike,
+                rng: np.random.Generator) -> Batch:
+        """AoA rows of every link, both directions, where in view.
+
+        Parameters
+        ----------
+        ids : (n,) vehicle ids; states : (n, dx) their true states.
+        links : (E, 2) undirected links as pairs of ids.
+
+        Returns a Batch with z (M, 1) wrapped to [−π, π), `sensor` = receiver,
+        `subject` = transmitter; rows ordered by link, receiver first-end first.
+        """
+        ids = np.asarray(ids, dtype=np.int64)
+        states = np.asarray(states, dtype=float)
+        links = np.asarray(links, dtype=np.int64).reshape(-1, 2)
+        if links.size == 0:
+            return Batch.empty(1)
+        ends = np.stack([links, links[:, ::-1]], axis=1).reshape(-1, 2)   # (2E, 2) receiver, transmitter
+        order = np.argsort(ids, kind="stable")
+        pos = order[np.searchsorted(ids, ends, sorter=order)]
+        if not np.array_equal(ids[pos], ends):
+            raise InvalidInputError("AngleOfArrival.measure: links name ids that are not in ids")
+        theta = self.bearing(states[pos[:, 0]], states[pos[:, 1]])
+        seen = self.in_view(theta)
+        receivers, transmitters = ends[seen, 0], ends[seen, 1]
+        cov = self.variance_of(receivers)
+        z = theta[seen] + np.sqrt(cov[:, 0, 0]) * rng.standard_normal(receivers.size)
+        return Batch(_wrap(z)[:, None], cov, receivers, transmitters)
+
+    def log_likelihood(self, batch: Batch, receiver: FloatArray, transmitter: FloatArray) -> FloatArray:
+        """log N(wrap(z − θ); 0, σ²_θ) per row, states (..., M, dx) aligned with rows."""
+        residual = _wrap(batch.z[:, 0] - self.bearing(receiver, transmitter))
+        return gaussian_logpdf(residual[..., None], batch.cov)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "model": self.name,
+            "covariances": {str(k): v.tolist() for k, v in self.covariances.items()},
+            "default_cov": None if self.default_cov is None else self.default_cov.tolist(),
+            "state_indices": list(self.state_indices),
+            "field_of_view": self.field_of_view,
+        }
+
+
+_SENSORS = (GnssPosition, RelativePosition, AnonymousPosition, InfrastructureRadar, Odometry,
+            AngleOfArrival)
 
 
 def sensor_from_dict(data: Mapping[str, Any]) -> SensorModel:

@@ -20,6 +20,7 @@ from cooploc.estimators.gnss_kf import GnssKF
 from cooploc.estimators.icp import ICP, ICPDALC, ICPDAPF
 from cooploc.estimators.kf_known_da import KFKnownDA
 from cooploc.estimators.oracle_kf import OracleKF
+from cooploc.estimators.plbp import PLBP, PriorLBP
 from cooploc.estimators.rsu_bp import RsuBP
 from cooploc.estimators.sme import SmePF, SmeUKF
 from cooploc.params import Params
@@ -41,6 +42,8 @@ _REGISTRY: dict[str, type] = {cls.name: cls for cls in (
     FgTopologyOld,
     FgTopologyNew,
     FgIsam2,
+    PLBP,
+    PriorLBP,
 )}
 
 
