@@ -41,10 +41,10 @@ class Preset:
 
 def presets() -> dict[str, Preset]:
     """All presets by name."""
-    from cooploc.scenarios import froehle2018
+    from cooploc.scenarios import froehle2018, sumo
 
     found: dict[str, Preset] = {}
-    for module in (froehle2018,):
+    for module in (froehle2018, sumo):
         for preset in module.PRESETS:
             found[preset.name] = preset
     return found
