@@ -55,9 +55,9 @@ class PaperExperiment:
 
 def experiments() -> dict[str, PaperExperiment]:
     """All paper experiments by name."""
-    from cooploc.reproduce import froehle2018
+    from cooploc.reproduce import froehle2018, sumo
 
-    return {e.name: e for e in (froehle2018.EXPERIMENT,)}
+    return {e.name: e for e in (froehle2018.EXPERIMENT, sumo.EXPERIMENT)}
 
 
 def get_experiment(name: str) -> PaperExperiment:

@@ -124,6 +124,7 @@ __all__ = [
     "network_path",
     "simulate_traffic",
     "traffic",
+    "traffic_seed",
     "zone_of",
 ]
 
@@ -618,11 +619,21 @@ def _links(ids: IntArray, positions: FloatArray, radius: float) -> IntArray:
     return np.stack([ids[i], ids[j]], axis=1)
 
 
+def _draw_traffic_seed(params: SumoParams, rng_traffic: np.random.Generator) -> int:
+    if params.traffic_seed >= 0:
+        return params.traffic_seed
+    return int(rng_traffic.integers(2**31 - 1))
+
+
+def traffic_seed(params: SumoParams, rng: np.random.Generator) -> int:
+    """The traffic seed that `generate(params, rng)` uses, for a generator in the same state."""
+    return _draw_traffic_seed(params, rng.spawn(4)[0])
+
+
 def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
     """One run: SUMO traffic (cached per seed) plus GNSS, V2F and V2V drawn from `rng`."""
     rng_traffic, rng_prior, rng_gnss, rng_v2f = rng.spawn(4)
-    seed = params.traffic_seed if params.traffic_seed >= 0 else int(rng_traffic.integers(2**31 - 1))
-    run = traffic(params, seed)
+    run = traffic(params, _draw_traffic_seed(params, rng_traffic))
     T, dt = params.n_steps, params.dt
     layout = StateLayout.position_velocity(2)
     state = (0, 1, 2, 3)
@@ -727,7 +738,7 @@ def _preset(network: str, regulation: str, **overrides: Any) -> Preset:
 #: recorded after 30 s of warm-up; vehicles and pedestrians enter and leave within it
 TINY_GRID: dict[str, Any] = {"network": GRID, "grid_size": 2, "grid_length": 80.0, "duration": 20.0,
                              "warmup": 30.0, "vehicle_period": 3.0, "pedestrian_period": 5.0,
-                             "max_static_features": 6, "zone_radii": (30.0, 60.0)}
+                             "max_static_features": 6, "zone_radii": (45.0, 52.0)}
 
 PRESETS = (
     _preset("braunschweig", "tlr"),
