@@ -47,9 +47,11 @@ Choices the paper leaves open (parameters of `SumoParams`)
   recording so that step 0 already has traffic.
 - TLR vs VSR: TLR keeps the shipped signals and adds those that netconvert's
   ``--tls.guess`` heuristic places (the Braunschweig export ships a single signal);
-  VSR turns every signalised junction of that network into a priority junction
-  (SUMO's gap acceptance on the minor roads). Same network geometry, same demand
-  (trip files generated once on the TLR network), same features.
+  VSR runs the same network with every signal switched off (``sumo --tls.all-off``):
+  the junctions fall back to their priority rules, minor roads yielding by SUMO's
+  gap acceptance. Same network file, same demand, same features. (Rewriting the
+  junctions to priority with netconvert was the first try; netconvert 1.28 crashes
+  on one of Braunschweig's joined junctions.)
 - Priors: vehicles present at step 0 start from the paper's "fast start" prior
   N(x, diag(2², 2², 0.1², 0.1²)) centred on a draw around their true state; vehicles
   that enter later have none (`Setup.vehicle_prior` lists only step-0 vehicles) and
@@ -120,6 +122,8 @@ __all__ = [
     "SumoParams",
     "Traffic",
     "cache_dir",
+    "cache_key",
+    "cache_path",
     "generate",
     "network_path",
     "simulate_traffic",
@@ -138,7 +142,7 @@ REGULATIONS = ("tlr", "vsr")
 ZONES = ("A", "B", "C")
 STATIC_FEATURE_ID_OFFSET = 1_000_000
 PEDESTRIAN_ID_OFFSET = 2_000_000
-CACHE_FORMAT = 1  # bump when the cached arrays change meaning
+CACHE_FORMAT = 2  # bump when the cached arrays change meaning
 _KERB_OFFSET = 1.5  # m beyond the right edge of the rightmost lane: signal heads, poles
 
 
@@ -368,9 +372,14 @@ def cache_key(params: SumoParams, seed: int) -> str:
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
 
 
+def cache_path(params: SumoParams, seed: int) -> Path:
+    """The cache file of the traffic of `params` and `seed`."""
+    return cache_dir() / f"{params.network}-{params.regulation}-{cache_key(params, seed)}.npz"
+
+
 def traffic(params: SumoParams, seed: int, *, use_cache: bool = True) -> Traffic:
     """The traffic of `params` and `seed`: from the cache, or simulated and cached."""
-    path = cache_dir() / f"{params.network}-{params.regulation}-{cache_key(params, seed)}.npz"
+    path = cache_path(params, seed)
     if use_cache and path.is_file():
         try:
             return Traffic.load(path)
@@ -393,8 +402,8 @@ def _binary(name: str) -> str:
     return str(Path(sumo.SUMO_HOME) / "bin" / name)
 
 
-def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Path, Path, FloatArray]:
-    """(TLR network, network to simulate, centre): both networks share every edge."""
+def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Path, FloatArray]:
+    """(network with traffic lights, centre of the study area)."""
     tlr = folder / "tlr.net.xml"
     if params.network == GRID:
         _run([_binary("netgenerate"), "--grid", "--grid.number", str(params.grid_size),
@@ -418,18 +427,7 @@ def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Pat
         _run([_binary("netconvert"), "-s", str(source), "--keep-edges.in-boundary", box,
               "--keep-edges.components", "1", "--tls.guess", "true", "--no-warnings", "true",
               "-o", str(tlr)], "netconvert (study area, traffic lights)")
-    if params.regulation == "tlr":
-        return tlr, tlr, centre
-    # VSR: every signalised junction becomes a priority junction (gap acceptance)
-    net = sumolib.net.readNet(str(tlr))
-    patch = folder / "unsignalised.nod.xml"
-    patch.write_text("<nodes>\n" + "".join(
-        f'    <node id="{n.getID()}" type="priority"/>\n'
-        for n in net.getNodes() if n.getType() == "traffic_light") + "</nodes>\n")
-    vsr = folder / "vsr.net.xml"
-    _run([_binary("netconvert"), "-s", str(tlr), "--node-files", str(patch), "--no-warnings",
-          "true", "-o", str(vsr)], "netconvert (unsignalised junctions)")
-    return tlr, vsr, centre
+    return tlr, centre
 
 
 def _demand(params: SumoParams, net: Path, folder: Path, seed: int) -> list[Path]:
@@ -487,12 +485,14 @@ def simulate_traffic(params: SumoParams, seed: int) -> Traffic:
     api = _simulator()
     with tempfile.TemporaryDirectory(prefix="cooploc-sumo-") as tmp:
         folder = Path(tmp)
-        tlr, net_file, centre = _build_networks(params, folder, sumolib)
-        routes = _demand(params, tlr, folder, seed)
+        net_file, centre = _build_networks(params, folder, sumolib)
+        routes = _demand(params, net_file, folder, seed)
         net = sumolib.net.readNet(str(net_file))
-        features, kind = static_features(sumolib.net.readNet(str(tlr)), params)
+        features, kind = static_features(net, params)
         signals = np.array([n.getCoord() for n in net.getNodes() if n.getType() == "traffic_light"],
                            dtype=float).reshape(-1, 2)
+        if params.regulation == "vsr":
+            signals = np.zeros((0, 2))  # switched off: priority rules and gap acceptance
         (x0, y0), (x1, y1) = net.getBBoxXY()
         T = params.n_steps
         end = params.warmup + params.duration
@@ -500,7 +500,10 @@ def simulate_traffic(params: SumoParams, seed: int) -> Traffic:
                 "--step-length", str(params.dt), "--begin", "0", "--end", f"{end + params.dt:.3f}",
                 "--seed", str(int(np.random.SeedSequence(seed).generate_state(3)[2] % 2**31)),
                 "--no-step-log", "true", "--no-warnings", "true", "--xml-validation", "never",
-                "--ignore-route-errors", "true", "--duration-log.disable", "true"]
+                "--ignore-route-errors", "true", "--duration-log.disable", "true",
+                # VSR: every signal switched off — the junction falls back to its
+                # priority rules (major roads 'O', minor roads yield 'o', gap acceptance)
+                "--tls.all-off", "true" if params.regulation == "vsr" else "false"]
         vehicles, pedestrians, times = [], [], np.zeros(T)
         with contextlib.redirect_stdout(io.StringIO()):
             api.start(args)
