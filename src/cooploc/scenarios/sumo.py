@@ -391,8 +391,9 @@ def traffic(params: SumoParams, seed: int, *, use_cache: bool = True) -> Traffic
     return result
 
 
-def _run(args: list[str], what: str) -> None:
-    done = subprocess.run(args, capture_output=True, text=True, check=False)
+def _run(args: list[str], what: str, cwd: Path) -> None:
+    """Run a SUMO tool in `cwd` (the tools may leave files in their working folder)."""
+    done = subprocess.run(args, capture_output=True, text=True, check=False, cwd=cwd)
     if done.returncode != 0:
         raise CooplocError(f"{what} failed ({args[0]}): {done.stderr.strip()[-800:]}")
 
@@ -409,7 +410,7 @@ def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Pat
         _run([_binary("netgenerate"), "--grid", "--grid.number", str(params.grid_size),
               "--grid.length", str(params.grid_length), "--default.lanenumber", "1",
               "--sidewalks.guess", "true", "--default-junction-type", "traffic_light",
-              "--seed", "0", "--no-warnings", "true", "-o", str(tlr)], "netgenerate")
+              "--seed", "0", "--no-warnings", "true", "-o", str(tlr)], "netgenerate", folder)
         net = sumolib.net.readNet(str(tlr))
         (x0, y0), (x1, y1) = net.getBBoxXY()
         centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
@@ -426,7 +427,7 @@ def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Pat
         box = f"{centre[0] - h},{centre[1] - h},{centre[0] + h},{centre[1] + h}"
         _run([_binary("netconvert"), "-s", str(source), "--keep-edges.in-boundary", box,
               "--keep-edges.components", "1", "--tls.guess", "true", "--no-warnings", "true",
-              "-o", str(tlr)], "netconvert (study area, traffic lights)")
+              "-o", str(tlr)], "netconvert (study area, traffic lights)", folder)
     return tlr, centre
 
 
@@ -440,13 +441,13 @@ def _demand(params: SumoParams, net: Path, folder: Path, seed: int) -> list[Path
     _run([sys.executable, tool, "-n", str(net), "-o", str(folder / "vehicles.trips.xml"),
           "-r", str(trips), "--seed", str(int(seeds[0])), "--period", str(params.vehicle_period),
           "--fringe-factor", str(params.fringe_factor), "--end", end, "--prefix", "v",
-          "--validate"], "randomTrips (vehicles)")
+          "--validate"], "randomTrips (vehicles)", folder)
     files = [trips]
     if params.pedestrian_period > 0:
         walks = folder / "pedestrians.rou.xml"
         _run([sys.executable, tool, "-n", str(net), "-o", str(walks), "--pedestrians",
               "--seed", str(int(seeds[1])), "--period", str(params.pedestrian_period),
-              "--end", end, "--prefix", "p"], "randomTrips (pedestrians)")
+              "--end", end, "--prefix", "p"], "randomTrips (pedestrians)", folder)
         files.append(walks)
     return files
 
