@@ -47,11 +47,12 @@ Choices the paper leaves open (parameters of `SumoParams`)
   recording so that step 0 already has traffic.
 - TLR vs VSR: TLR keeps the shipped signals and adds those that netconvert's
   ``--tls.guess`` heuristic places (the Braunschweig export ships a single signal);
-  VSR runs the same network with every signal switched off (``sumo --tls.all-off``):
-  the junctions fall back to their priority rules, minor roads yielding by SUMO's
-  gap acceptance. Same network file, same demand, same features. (Rewriting the
-  junctions to priority with netconvert was the first try; netconvert 1.28 crashes
-  on one of Braunschweig's joined junctions.)
+  VSR rewrites every signalised junction of that network as a priority junction
+  (netconvert), minor roads yielding by SUMO's gap acceptance; the few junctions
+  netconvert 1.28 crashes on (one in Braunschweig) stay signalised but are switched
+  off at run time (``sumo --tls.all-off``: priority rules without the junction's
+  internal waiting positions). Same geometry, same demand (trip files generated on
+  the TLR network), same features.
 - Priors: vehicles present at step 0 start from the paper's "fast start" prior
   N(x, diag(2², 2², 0.1², 0.1²)) centred on a draw around their true state; vehicles
   that enter later have none (`Setup.vehicle_prior` lists only step-0 vehicles) and
@@ -142,7 +143,7 @@ REGULATIONS = ("tlr", "vsr")
 ZONES = ("A", "B", "C")
 STATIC_FEATURE_ID_OFFSET = 1_000_000
 PEDESTRIAN_ID_OFFSET = 2_000_000
-CACHE_FORMAT = 2  # bump when the cached arrays change meaning
+CACHE_FORMAT = 3  # bump when the cached arrays change meaning
 _KERB_OFFSET = 1.5  # m beyond the right edge of the rightmost lane: signal heads, poles
 
 
@@ -391,11 +392,13 @@ def traffic(params: SumoParams, seed: int, *, use_cache: bool = True) -> Traffic
     return result
 
 
-def _run(args: list[str], what: str, cwd: Path) -> None:
+def _run(args: list[str], what: str, cwd: Path, *, check: bool = True) -> bool:
     """Run a SUMO tool in `cwd` (the tools may leave files in their working folder)."""
     done = subprocess.run(args, capture_output=True, text=True, check=False, cwd=cwd)
-    if done.returncode != 0:
-        raise CooplocError(f"{what} failed ({args[0]}): {done.stderr.strip()[-800:]}")
+    if done.returncode != 0 and check:
+        raise CooplocError(f"{what} failed ({args[0]}, exit code {done.returncode}): "
+                           f"{(done.stderr + done.stdout).strip()[-800:]}")
+    return done.returncode == 0
 
 
 def _binary(name: str) -> str:
@@ -429,6 +432,28 @@ def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Pat
               "--keep-edges.components", "1", "--tls.guess", "true", "--no-warnings", "true",
               "-o", str(tlr)], "netconvert (study area, traffic lights)", folder)
     return tlr, centre
+
+
+def _unsignalised(tlr: Path, folder: Path, sumolib: Any) -> Path:
+    """The network with every signalised junction rewritten as a priority junction (VSR).
+
+    netconvert 1.28 crashes on a few joined junctions (one in Braunschweig); those are
+    left signalised here and switched off at run time (``--tls.all-off``).
+    """
+    nodes = [n.getID() for n in sumolib.net.readNet(str(tlr)).getNodes()
+             if n.getType() == "traffic_light"]
+    vsr, patch = folder / "vsr.net.xml", folder / "unsignalised.nod.xml"
+
+    def rewrite(ids: list[str], check: bool) -> bool:
+        patch.write_text("<nodes>\n" + "".join(f'    <node id="{i}" type="priority"/>\n'
+                                               for i in ids) + "</nodes>\n")
+        return _run([_binary("netconvert"), "-s", str(tlr), "--node-files", str(patch),
+                     "--no-warnings", "true", "-o", str(vsr)], "netconvert (unsignalised junctions)",
+                    folder, check=check)
+
+    if not rewrite(nodes, check=False):
+        rewrite([i for i in nodes if rewrite([i], check=False)], check=True)
+    return vsr
 
 
 def _demand(params: SumoParams, net: Path, folder: Path, seed: int) -> list[Path]:
@@ -486,14 +511,16 @@ def simulate_traffic(params: SumoParams, seed: int) -> Traffic:
     api = _simulator()
     with tempfile.TemporaryDirectory(prefix="cooploc-sumo-") as tmp:
         folder = Path(tmp)
-        net_file, centre = _build_networks(params, folder, sumolib)
-        routes = _demand(params, net_file, folder, seed)
+        tlr, centre = _build_networks(params, folder, sumolib)
+        # demand and features from the TLR network: both variants share them
+        routes = _demand(params, tlr, folder, seed)
+        features, kind = static_features(sumolib.net.readNet(str(tlr)), params)
+        net_file = tlr if params.regulation == "tlr" else _unsignalised(tlr, folder, sumolib)
         net = sumolib.net.readNet(str(net_file))
-        features, kind = static_features(net, params)
         signals = np.array([n.getCoord() for n in net.getNodes() if n.getType() == "traffic_light"],
                            dtype=float).reshape(-1, 2)
         if params.regulation == "vsr":
-            signals = np.zeros((0, 2))  # switched off: priority rules and gap acceptance
+            signals = np.zeros((0, 2))  # none left active (see `_unsignalised`)
         (x0, y0), (x1, y1) = net.getBBoxXY()
         T = params.n_steps
         end = params.warmup + params.duration
@@ -502,8 +529,8 @@ def simulate_traffic(params: SumoParams, seed: int) -> Traffic:
                 "--seed", str(int(np.random.SeedSequence(seed).generate_state(3)[2] % 2**31)),
                 "--no-step-log", "true", "--no-warnings", "true", "--xml-validation", "never",
                 "--ignore-route-errors", "true", "--duration-log.disable", "true",
-                # VSR: every signal switched off — the junction falls back to its
-                # priority rules (major roads 'O', minor roads yield 'o', gap acceptance)
+                # VSR: a signal netconvert could not rewrite is switched off — its
+                # junction falls back to priority rules (major 'O', minor yield 'o')
                 "--tls.all-off", "true" if params.regulation == "vsr" else "false"]
         vehicles, pedestrians, times = [], [], np.zeros(T)
         with contextlib.redirect_stdout(io.StringIO()):
