@@ -253,3 +253,13 @@ def test_cache_dir_follows_the_environment(monkeypatch: pytest.MonkeyPatch, tmp_
     monkeypatch.delenv("COOPLOC_CACHE_DIR")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     assert sumo.cache_dir() == tmp_path / "xdg" / "cooploc" / "sumo"
+
+
+def test_traci_fallback_gives_the_same_traffic(cache, tiny: sumo.SumoParams,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    in_process = sumo.simulate_traffic(tiny, 4)
+    monkeypatch.setitem(sys.modules, "libsumo", None)  # no libsumo: SUMO runs as a subprocess
+    assert sumo._simulator().__name__ == "traci"
+    subprocess_run = sumo.simulate_traffic(tiny, 4)
+    np.testing.assert_array_equal(in_process.vehicle_states, subprocess_run.vehicle_states)
+    np.testing.assert_array_equal(in_process.pedestrian_states, subprocess_run.pedestrian_states)

@@ -524,7 +524,8 @@ def simulate_traffic(params: SumoParams, seed: int) -> Traffic:
         (x0, y0), (x1, y1) = net.getBBoxXY()
         T = params.n_steps
         end = params.warmup + params.duration
-        args = ["sumo", "-n", str(net_file), "-r", ",".join(map(str, routes)),
+        # libsumo ignores args[0]; traci starts that binary
+        args = [_binary("sumo"), "-n", str(net_file), "-r", ",".join(map(str, routes)),
                 "--step-length", str(params.dt), "--begin", "0", "--end", f"{end + params.dt:.3f}",
                 "--seed", str(int(np.random.SeedSequence(seed).generate_state(3)[2] % 2**31)),
                 "--no-step-log", "true", "--no-warnings", "true", "--xml-validation", "never",
