@@ -13,7 +13,9 @@ is covered without touching this file. Each runs on a short recording of its own
 - survive missed detections and clutter;
 - stay finite with bounded covariance over a long run;
 - never see truth unless it is a known-association reference (`needs_truth`), which
-  receives an `AssociationTruth` (association only, no states).
+  receives an `AssociationTruth` (association only, no states);
+- follow real traffic: a tiny SUMO run (`cooploc.scenarios.sumo.TINY_GRID`) where
+  vehicles and pedestrians enter and leave, with zone-dependent GNSS covariances.
 
 Scenario-specific variants (traffic needs ≥ 3 vehicles, clutter needs the scenario's
 `detection_probability` / `clutter_rate`) are skipped, with the reason, for presets
@@ -236,3 +238,27 @@ def test_true_states_are_never_read(name: str, seed: int) -> None:
         feature_states=np.full_like(rec.truth.feature_states, -7.0))
     blind = Recording(rec.setup, rec.frames, garbage)
     assert_same_numbers(run_estimator(name, rec, seed=3), run_estimator(name, blind, seed=3))
+
+
+# ----------------------------------------------------------------------------
+# SUMO traffic
+# ----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sumo_traffic(seed: int, tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    """A tiny SUMO run (cache in a temporary folder, not the user's)."""
+    from cooploc.scenarios import sumo
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("COOPLOC_CACHE_DIR", str(tmp_path_factory.mktemp("sumo-cache")))
+        params = get_preset("sumo-grid-tlr").params.with_overrides(sumo.TINY_GRID)
+        return sumo.generate(params, np.random.default_rng([seed, 51]))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_sumo_traffic(name: str, sumo_traffic: Recording) -> None:
+    present = sumo_traffic.truth.vehicle_present
+    assert (~present[0] & present.any(axis=0)).any(), "no vehicle enters"
+    assert (present[0] & ~present[-1]).any(), "no vehicle leaves"
+    assert_run_valid(run_estimator(name, sumo_traffic), sumo_traffic)

@@ -55,9 +55,9 @@ class PaperExperiment:
 
 def experiments() -> dict[str, PaperExperiment]:
     """All paper experiments by name."""
-    from cooploc.reproduce import brambilla2020, froehle2018, gulati, plbp, zhang2016
+    from cooploc.reproduce import brambilla2020, froehle2018, gulati, plbp, sumo, zhang2016
 
-    modules = (froehle2018, brambilla2020, zhang2016, gulati, plbp)
+    modules = (froehle2018, brambilla2020, zhang2016, gulati, plbp, sumo)
     return {m.EXPERIMENT.name: m.EXPERIMENT for m in modules}
 
 

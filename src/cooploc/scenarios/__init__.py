@@ -41,10 +41,10 @@ class Preset:
 
 def presets() -> dict[str, Preset]:
     """All presets by name."""
-    from cooploc.scenarios import aoa_grid, brambilla2020, froehle2018, gulati, zhang2016
+    from cooploc.scenarios import aoa_grid, brambilla2020, froehle2018, gulati, sumo, zhang2016
 
     found: dict[str, Preset] = {}
-    for module in (froehle2018, brambilla2020, zhang2016, gulati, aoa_grid):
+    for module in (froehle2018, brambilla2020, zhang2016, gulati, aoa_grid, sumo):
         for preset in module.PRESETS:
             found[preset.name] = preset
     return found

@@ -1,0 +1,25 @@
+"""benchmarks/sumo.py runs at quick size and writes its JSON (no timing asserted)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_sumo_benchmark_writes_json(tmp_path, monkeypatch):
+    monkeypatch.setenv("COOPLOC_CACHE_DIR", str(tmp_path / "cache"))
+    # not named "sumo": that is Eclipse SUMO's package
+    spec = importlib.util.spec_from_file_location("benchmark_sumo", ROOT / "benchmarks" / "sumo.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    out = tmp_path / "bench.json"
+    assert module.main(["--quick", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert set(data["presets"]) == {"sumo-grid-tlr", "sumo-grid-vsr"}
+    for entry in data["presets"].values():
+        assert entry["simulate_seconds_per_minute"] > 0 and entry["build_seconds_per_minute"] > 0
+        assert entry["steps"] == round(20 / 0.75) and entry["vehicles_mean_present"] > 0
+        assert entry["build_peak_memory_bytes"] > 0
