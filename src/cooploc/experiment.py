@@ -264,7 +264,7 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
         seconds[spec.name], steps[spec.name] = spent, len(recording.frames)
         if total:
             association[spec.name] = (correct, total)
-    errors, seconds, steps, association, discarded, ospa = {}, {}, {}, {}, {}, {}
+    return RunResult(run, errors, seconds, steps, association, discarded, ospa)
 
 
 # ----------------------------------------------------------------------------
