@@ -573,9 +573,7 @@ class _SmeFilter:
             self.Q = self.Q[0]
         self.ids: IntArray = np.zeros(0, np.int64)
         self._gate = chi2.ppf(params.gate_probability, df=2)
-        gnss, radar = setup.sensors.get("gnss"), setup.sensors.get("radar")
-        self._gnss_cols = list(getattr(gnss, "state_indices", self.pos))
-        self._radar_cov = getattr(radar, "default_cov", None)
+        self._gnss_cols = list(getattr(setup.sensors.get("gnss"), "state_indices", self.pos))
 
     # -- to be provided by the filter ------------------------------------------------
     def _moments(self) -> tuple[FloatArray, FloatArray]:
