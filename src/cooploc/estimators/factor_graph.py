@@ -436,7 +436,13 @@ def _linearize(problem: _Problem, x: FloatArray, jacobian: bool = True
             q = x[previous] + delta
             r = (bilinear_topology(p, q) - s) / sigma
         w = _huber_weights(r, problem.huber)
-        parts_r.append(w * r)
+        if jacobian:
+            parts_r.append(w * r)  # IRLS: √w r and √w J give the Huber gradient and Hessian
+        else:
+            # cost-equivalent residual: ½ r_eff² = ρ(r), the Huber loss (k|r| − k²/2 outside)
+            k = problem.huber
+            outside = (k > 0) & (np.abs(r) > k)
+            parts_r.append(np.where(outside, np.sqrt(np.maximum(2 * k * np.abs(r) - k * k, 0.0)), r))
         if jacobian:
             K, n = current.shape
             J_cur, J_prev = topology_jacobians(problem.kind, p, q)
@@ -511,7 +517,12 @@ def solve_lm(problem: _Problem, x0: FloatArray, *, max_iterations: int = 100,
     x = np.array(x0, dtype=float)
     lam = lambda_initial
     r, J = _linearize(problem, x)
-    cost = 0.5 * float(r @ r)
+
+    def cost_at(y: FloatArray) -> float:  # ½ Σ r² with the Huber loss on topology rows
+        e = _linearize(problem, y, jacobian=False)[0]
+        return 0.5 * float(e @ e)
+
+    cost = cost_at(x)
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 - reported
         H = (J.T @ J).tocsr()
@@ -528,8 +539,7 @@ def solve_lm(problem: _Problem, x0: FloatArray, *, max_iterations: int = 100,
                 lam *= 10.0
                 continue
             step = -cho_solve_banded((U, False), g).reshape(-1, 2)
-            r_new = _linearize(problem, x + step, jacobian=False)[0]
-            cost_new = 0.5 * float(r_new @ r_new)
+            cost_new = cost_at(x + step)
             if cost_new <= cost:
                 x += step
                 decrease = cost - cost_new
