@@ -273,9 +273,12 @@ class GraphData:
         n = ids.size
         new_vars = self.n_vars + np.arange(n)
         self.n_vars += n
-        cont = np.isin(ids, self._ids)
-        prev = np.full(n, -1, np.int64)
-        prev[cont] = self._vars[np.searchsorted(self._ids, ids[cont])]
+        if np.array_equal(ids, self._ids):  # the usual step: the same vehicles as before
+            cont, prev = np.ones(n, bool), self._vars
+        else:
+            cont = np.isin(ids, self._ids)
+            prev = np.full(n, -1, np.int64)
+            prev[cont] = self._vars[np.searchsorted(self._ids, ids[cont])]
         # unary: prior on the first variable of each chain, then GPS (eq. 7)
         u_var, u_z, u_cov = [], [], []
         if (~cont).any():
@@ -696,12 +699,16 @@ class _PositionFilter:
             mean[cont], cov[cont] = self.mean[at], self.cov[at]
         # predict with the between rows of this frame: p_t = p_{t−1} + δ_t, P += R
         b = f.between_b - (f.vars[0] if n else 0)
-        first = np.unique(b, return_index=True)[1]
+        first = slice(None) if np.array_equal(b, np.arange(n)) else np.unique(b, return_index=True)[1]
         mean[b[first]] += f.between_z[first]
         cov[b[first]] += f.between_cov[first]
         # unary rows: the first row of a new chain is its birth prior (the belief); the
         # other rows (GPS) update it, in rounds of distinct vehicles (one round usually)
         target = f.unary_var - (f.vars[0] if n else 0)
+        if cont.all() and np.array_equal(target, np.arange(n)):  # one fix per vehicle, in order
+            upd = kf_update(Gaussians(mean, cov), f.unary_z, _I2, f.unary_cov)
+            self.vars, self.mean, self.cov = f.vars, upd.mean, upd.cov
+            return upd
         rows = np.arange(target.size)
         born = ~cont[target]
         if born.any():
@@ -736,7 +743,7 @@ class _Estimates:
     def filtered_velocity(self, delta: FloatArray) -> tuple[FloatArray, FloatArray]:
         """δ_t / T with R_odo / T² where a vehicle has one odometry row; 0, broad otherwise."""
         have = np.isfinite(delta).all(axis=1)
-        vel = np.where(have[:, None], np.nan_to_num(delta) / self.dt, 0.0)
+        vel = np.where(have[:, None], delta / self.dt, 0.0)
         cov = np.where(have[:, None, None], self.odometry_cov / self.dt**2, 100.0 * _I2)
         return vel, cov
 
