@@ -370,3 +370,19 @@ def test_robust_lm_equals_gtsam_huber(kind: str, seed: int) -> None:
     # both converged tightly: the Huber cost is strictly convex near its minimum here
     np.testing.assert_allclose(ours.cost, ref.cost, rtol=1e-6)
     np.testing.assert_allclose(ours.x, ref.x, atol=SOLVER_ATOL_M)
+
+
+def test_run_one_scores_the_smoothed_estimates() -> None:
+    """experiment.run_one calls `smooth()` after the last step and scores its output."""
+    from cooploc.experiment import ExperimentConfig, run_generators, run_one
+    from cooploc.metrics import evaluate
+
+    config = ExperimentConfig.build("gulati-2v", ["fg-topology-new"],
+                                    scenario_overrides={"n_steps": 20}, runs=1, backend="serial")
+    errors = run_one(config, 0).errors["fg-topology-new"]
+    scenario_rng, rngs = run_generators(config.seed, 0, ["fg-topology-new"])
+    rec = get_preset("gulati-2v").generate(scenario_rng, config.scenario_params)
+    est = make_estimator("fg-topology-new", rec.setup, None, rngs["fg-topology-new"])
+    filtered = [est.step(f) for f in rec.frames]
+    np.testing.assert_array_equal(errors.err_pos, evaluate(rec, est.smooth()).err_pos)
+    assert not np.array_equal(errors.err_pos, evaluate(rec, filtered).err_pos)
