@@ -273,9 +273,12 @@ class GraphData:
         n = ids.size
         new_vars = self.n_vars + np.arange(n)
         self.n_vars += n
-        cont = np.isin(ids, self._ids)
-        prev = np.full(n, -1, np.int64)
-        prev[cont] = self._vars[np.searchsorted(self._ids, ids[cont])]
+        if np.array_equal(ids, self._ids):  # the usual step: the same vehicles as before
+            cont, prev = np.ones(n, bool), self._vars
+        else:
+            cont = np.isin(ids, self._ids)
+            prev = np.full(n, -1, np.int64)
+            prev[cont] = self._vars[np.searchsorted(self._ids, ids[cont])]
         # unary: prior on the first variable of each chain, then GPS (eq. 7)
         u_var, u_z, u_cov = [], [], []
         if (~cont).any():
@@ -436,7 +439,13 @@ def _linearize(problem: _Problem, x: FloatArray, jacobian: bool = True
             q = x[previous] + delta
             r = (bilinear_topology(p, q) - s) / sigma
         w = _huber_weights(r, problem.huber)
-        parts_r.append(w * r)
+        if jacobian:
+            parts_r.append(w * r)  # IRLS: √w r and √w J give the Huber gradient and Hessian
+        else:
+            # cost-equivalent residual: ½ r_eff² = ρ(r), the Huber loss (k|r| − k²/2 outside)
+            k = problem.huber
+            outside = (k > 0) & (np.abs(r) > k)
+            parts_r.append(np.where(outside, np.sqrt(np.maximum(2 * k * np.abs(r) - k * k, 0.0)), r))
         if jacobian:
             K, n = current.shape
             J_cur, J_prev = topology_jacobians(problem.kind, p, q)
@@ -511,7 +520,12 @@ def solve_lm(problem: _Problem, x0: FloatArray, *, max_iterations: int = 100,
     x = np.array(x0, dtype=float)
     lam = lambda_initial
     r, J = _linearize(problem, x)
-    cost = 0.5 * float(r @ r)
+
+    def cost_at(y: FloatArray) -> float:  # ½ Σ r² with the Huber loss on topology rows
+        e = _linearize(problem, y, jacobian=False)[0]
+        return 0.5 * float(e @ e)
+
+    cost = cost_at(x)
     iterations = 0
     for iterations in range(1, max_iterations + 1):  # noqa: B007 - reported
         H = (J.T @ J).tocsr()
@@ -528,8 +542,7 @@ def solve_lm(problem: _Problem, x0: FloatArray, *, max_iterations: int = 100,
                 lam *= 10.0
                 continue
             step = -cho_solve_banded((U, False), g).reshape(-1, 2)
-            r_new = _linearize(problem, x + step, jacobian=False)[0]
-            cost_new = 0.5 * float(r_new @ r_new)
+            cost_new = cost_at(x + step)
             if cost_new <= cost:
                 x += step
                 decrease = cost - cost_new
@@ -686,12 +699,16 @@ class _PositionFilter:
             mean[cont], cov[cont] = self.mean[at], self.cov[at]
         # predict with the between rows of this frame: p_t = p_{t−1} + δ_t, P += R
         b = f.between_b - (f.vars[0] if n else 0)
-        first = np.unique(b, return_index=True)[1]
+        first = slice(None) if np.array_equal(b, np.arange(n)) else np.unique(b, return_index=True)[1]
         mean[b[first]] += f.between_z[first]
         cov[b[first]] += f.between_cov[first]
         # unary rows: the first row of a new chain is its birth prior (the belief); the
         # other rows (GPS) update it, in rounds of distinct vehicles (one round usually)
         target = f.unary_var - (f.vars[0] if n else 0)
+        if cont.all() and np.array_equal(target, np.arange(n)):  # one fix per vehicle, in order
+            upd = kf_update(Gaussians(mean, cov), f.unary_z, _I2, f.unary_cov)
+            self.vars, self.mean, self.cov = f.vars, upd.mean, upd.cov
+            return upd
         rows = np.arange(target.size)
         born = ~cont[target]
         if born.any():
@@ -726,7 +743,7 @@ class _Estimates:
     def filtered_velocity(self, delta: FloatArray) -> tuple[FloatArray, FloatArray]:
         """δ_t / T with R_odo / T² where a vehicle has one odometry row; 0, broad otherwise."""
         have = np.isfinite(delta).all(axis=1)
-        vel = np.where(have[:, None], np.nan_to_num(delta) / self.dt, 0.0)
+        vel = np.where(have[:, None], delta / self.dt, 0.0)
         cov = np.where(have[:, None, None], self.odometry_cov / self.dt**2, 100.0 * _I2)
         return vel, cov
 
