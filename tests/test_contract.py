@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from cooploc.errors import ConfigError
 from cooploc.estimators import estimators, get_estimator, make_estimator
 from cooploc.estimators.base import AssociationTruth
 from cooploc.params import Params
@@ -261,4 +262,10 @@ def test_sumo_traffic(name: str, sumo_traffic: Recording) -> None:
     present = sumo_traffic.truth.vehicle_present
     assert (~present[0] & present.any(axis=0)).any(), "no vehicle enters"
     assert (present[0] & ~present[-1]).any(), "no vehicle leaves"
+    missing = [k for k in getattr(get_estimator(name), "required_sensors", ())
+               if k not in sumo_traffic.setup.sensors]
+    if missing:  # a method that needs a sensor SUMO traffic does not have must say so clearly
+        with pytest.raises(ConfigError, match=f"{name} needs the measurement kinds {missing[0]}"):
+            run_estimator(name, sumo_traffic)
+        return
     assert_run_valid(run_estimator(name, sumo_traffic), sumo_traffic)

@@ -68,6 +68,10 @@ def make_estimator(
 ) -> Estimator:
     """Construct estimator `name`; pass `truth` only to known-association references."""
     cls = get_estimator(name)
+    missing = [kind for kind in getattr(cls, "required_sensors", ()) if kind not in setup.sensors]
+    if missing:
+        raise ConfigError(f"{name} needs the measurement kinds {', '.join(missing)}, which this scenario "
+                          f"does not have (it has: {', '.join(sorted(setup.sensors)) or 'none'})")
     params = cls.Params() if params is None else params
     if not isinstance(params, cls.Params):
         raise ConfigError(f"{name}: params must be {cls.Params.__name__}, got {type(params).__name__}")

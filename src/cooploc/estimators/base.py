@@ -67,6 +67,9 @@ class Estimator(Protocol):
     Params: ClassVar[type[Params]]
     needs_truth: ClassVar[bool]
     default_preset: ClassVar[str]
+    #: measurement kinds (`Setup.sensors` keys) without which the method cannot run;
+    #: `make_estimator` refuses a scenario that lacks one with a `ConfigError`
+    required_sensors: ClassVar[tuple[str, ...]]
 
     def step(self, frame: Frame) -> Estimate: ...
 

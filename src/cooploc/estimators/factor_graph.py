@@ -811,6 +811,7 @@ class _BatchGraph:
     Params: ClassVar[type[Params]] = FactorGraphParams
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "gulati-2v"
+    required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "odometry")
 
     def __init__(self, setup: Setup, params: FactorGraphParams, rng: np.random.Generator) -> None:
         self.setup, self.params = setup, params
@@ -914,6 +915,7 @@ class FgIsam2:
     Params: ClassVar[type[Params]] = ISAM2Params
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "gulati-2v"
+    required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "odometry")
 
     def __init__(self, setup: Setup, params: ISAM2Params, rng: np.random.Generator) -> None:
         import gtsam

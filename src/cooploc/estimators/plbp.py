@@ -639,6 +639,7 @@ class PLBP:
     Params: ClassVar[type[Params]] = PLBPParams
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "aoa-grid"
+    required_sensors: ClassVar[tuple[str, ...]] = ("aoa",)
     posterior: ClassVar[bool] = True
 
     def __init__(self, setup: Setup, params: PLBPParams, rng: np.random.Generator) -> None:

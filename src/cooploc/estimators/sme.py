@@ -560,6 +560,7 @@ class _SmeFilter:
     Params: ClassVar[type[Params]]
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "zhang2016-cv"
+    required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "radar")
 
     def __init__(self, setup: Setup, params: _SmeParams, rng: np.random.Generator) -> None:
         self.setup = setup
