@@ -25,9 +25,10 @@ held as `Particles(samples (n, N_p, d), log_weights (n, N_p))`: a batch of n bel
   storing G (for when the pairs do not fit in memory). Both whiten with the Cholesky
   factor W = L Lᵀ (u = L⁻¹(z − a), v = L⁻¹ c, so the exponent is −½‖u + v‖²) and run a
   numba `prange` loop over (b, j) whose inner loops over l are contiguous. Measured on
-  the 2-core machine (while loaded by other jobs): float64 numba ~70–80 million pair
-  evaluations per second, float32 with row scaling ~125–135 million, plain NumPy
-  broadcast 15–20 million (temporaries of size B N_j N_l d); see
+  the 2-core machine by `benchmarks/rsu_bp.py` (one run, 18 blocks of 600 × 600
+  pairs, load average ≈ 2): float32 stored kernel 270 million pair evaluations per
+  second, fused float64 sum 160 million, plain NumPy broadcast (float64, temporaries
+  of size B N_j N_l d) 65 million; under heavy load (≈ 14) 68 / 34 / 11 million. See
   `benchmarks/rsu_bp.py`, which measures all three in one run.
 
 Complexity: O(B N_j N_l d) for the kernel; O(n N_p) for everything else.

@@ -30,6 +30,13 @@ Complexity O(S K M N_p² (1 + I)) kernel work, done as one numba pass that fills
 (S K M N_p² doubles; with more than `kernel_memory_mb` the kernel is recomputed per
 use instead of stored), plus O(S K M P) for the association.
 
+Measured (`python benchmarks/rsu_bp.py`, froehle2018, 2 runs × 501 steps, quiet 2-core
+machine): N_p = 600 — 18.5 steps/s, vehicle-2 RMSE 0.92 m against 0.67 m for
+`oracle-kf` (1.37 ×) and 2.41 m for `gnss-kf`; N_p = 2000 (1 run, 201 steps) —
+1.3 steps/s, 1.22 × the bound. The gap to the bound is BP's: beliefs are products of
+marginals, so the vehicle–feature correlation that the joint Kalman filter keeps is
+dropped every step (the paper's §V-B remark), plus particle noise that shrinks with N_p.
+
 Choices the paper leaves open (DESIGN note):
 - Vehicle births: the prior of `Setup.vehicle_prior` (or a broad belief at the first
   fix, `estimators.base.birth_beliefs`), Kalman-updated with the first GNSS fix and
