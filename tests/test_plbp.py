@@ -242,7 +242,7 @@ def test_params_and_setup_are_checked() -> None:
         PLBPParams(linearization_iterations=0)
     with pytest.raises(ConfigError, match="sigma_points"):
         PLBPParams(sigma_points="gauss-hermite")
-    with pytest.raises(ConfigError, match="'aoa' sensor"):
+    with pytest.raises(ConfigError, match="plbp needs the measurement kinds aoa"):
         make_estimator("plbp", froehle_recording(0).setup, None, np.random.default_rng(0))
 
 

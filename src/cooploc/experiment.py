@@ -234,7 +234,8 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
             estimates.append(estimate)
             true = recording.truth.origin[frame.k].get("v2f", np.zeros(0, np.int64))
             decided = estimate.info.get("v2f_association")
-            if decided is not None:  # decided origin per V2F row, for association accuracy
+            if decided is not None and "v2f_track" not in estimate.info:
+                # decided origin per V2F row, for association accuracy (self-named tracks below)
                 correct += int(np.sum(np.asarray(decided) == true))
                 total += int(true.size)
             track = estimate.info.get("v2f_track")

@@ -214,6 +214,10 @@ class RsuBP:
             info.update(assoc)
         self.vehicles = Particles(self.vehicles.samples, normalize_log_weights(log_bx)[0])
         info["v2f_association"] = decided
+        # the feature ids are labels this filter gives features that all share one prior:
+        # score them as tracks (the true feature most of their rows came from)
+        info["v2f_track"] = decided
+        info["v2f_discarded"] = int((decided < 0).sum())
         estimate = self._estimate(info)
         self._resample()
         return estimate
