@@ -460,7 +460,7 @@ class ICPDALC(ICP):
             claimed[ai, w] = True
         candidate = da.mask & ~claimed & (da.p_new >= 0.5)
         discarded = da.mask & ~claimed & ~candidate
-        births = self._births(frame.k, network, prior, v2f, da.row_of, candidate)
+        births, _, _ = self._births(frame.k, network, prior, v2f, da.row_of, candidate)
         track[da.row_of[candidate]] = births
         info = {"v2f_track": track, "v2f_discarded": int(discarded.sum()),
                 "births": int(np.unique(births).size)}
@@ -492,8 +492,9 @@ class ICPDALC(ICP):
         return _Association(row_of, mask, known, marginals, marginals.clutter, log_l)
 
     def _births(self, k: int, network: Network, prior: Gaussians, v2f: Batch,
-                row_of: IntArray, candidate: np.ndarray) -> IntArray:
-        """Ids of the new features started by the candidate rows, agreed by flooding.
+                row_of: IntArray, candidate: np.ndarray) -> tuple[IntArray, FloatArray, FloatArray]:
+        """Ids of the new features started by the candidate rows, agreed by flooding, and
+        the first detection each id is named after (g, P per candidate row).
 
         Each candidate's global state g = z + m_i (covariance R + P_i) is flooded to
         every agent (N_cons rounds); every agent then groups the candidates it knows —
@@ -503,7 +504,7 @@ class ICPDALC(ICP):
         """
         ai, wi = np.nonzero(candidate)                       # in agent order, then row order
         if ai.size == 0:
-            return np.zeros(0, dtype=np.int64)
+            return np.zeros(0, dtype=np.int64), np.zeros((0, self.d)), np.zeros((0, self.d, self.d))
         rows = row_of[ai, wi]
         agent_ids = network.agents[ai]
         if (agent_ids >= 1 << 20).any() or (wi >= 1 << 12).any() or k >= 1 << 20:
@@ -529,7 +530,9 @@ class ICPDALC(ICP):
             names = _group_births(ids[members], agent_ids[members], g[members], P[members])
             mine = np.flatnonzero(pattern & (which[ai] == pattern_index))
             out[mine] = names[np.searchsorted(members, mine)]
-        return out
+        # ids grow with (agent, row), the order of the candidates: a name is found by search
+        lead = np.searchsorted(ids, out)
+        return out, g[lead], P[lead]
 
 
 def _group_births(ids: IntArray, agents: IntArray, g: FloatArray, P: FloatArray) -> IntArray:
@@ -653,8 +656,7 @@ class ICPDAPF(ICPDALC):
             p_assoc = log_eta = np.zeros(0)
             claimed = np.zeros((n, W), dtype=bool)
         candidate = da.mask & ~claimed & (da.p_new >= 0.5)
-        births, birth_g, birth_P = self._births_with_proposals(frame.k, network, prior, v2f, da.row_of,
-                                                               candidate)
+        births, birth_g, birth_P = self._births(frame.k, network, prior, v2f, da.row_of, candidate)
         # the MAP origin of each row, for association accuracy
         track = np.full(len(v2f), -1, dtype=np.int64)
         if da.marginals is not None:
@@ -688,21 +690,6 @@ class ICPDAPF(ICPDALC):
         prop_mean, prop_cov = self._proposals(pair_i, pair_k, ids, births, birth_g, birth_P)
         return self._particle_bpa_l(frame, network, prior, v2f, da.row_of, pair_i, pair_k, blk_pair, blk_w,
                                     blk_p, blk_log_eta, prop_mean, prop_cov, ids)
-
-    def _births_with_proposals(self, k: int, network: Network, prior: Gaussians, v2f: Batch,
-                               row_of: IntArray, candidate: np.ndarray
-                               ) -> tuple[IntArray, FloatArray, FloatArray]:
-        """Birth ids (as `icp-da-lc`) and, per candidate, the first detection the id is named after."""
-        births = self._births(k, network, prior, v2f, row_of, candidate)
-        ai, wi = np.nonzero(candidate)
-        g = v2f.z[row_of[ai, wi]] + prior.mean[ai]
-        P = v2f.cov[row_of[ai, wi]] + prior.cov[ai]
-        # every member of a group proposes from the group's first detection (its name)
-        own = BIRTH_ID_BASE + (np.int64(k) << 32) + (network.agents[ai] << 12) + wi
-        lead = np.searchsorted(own, births) if own.size else own
-        found = (lead < own.size) & (own[np.minimum(lead, max(own.size - 1, 0))] == births)
-        lead = np.where(found, lead, np.arange(own.size))      # a group led by an unseen agent
-        return births, g[lead], P[lead]
 
     def _proposals(self, pair_i: IntArray, pair_k: IntArray, ids: IntArray, births: IntArray,
                    birth_g: FloatArray, birth_P: FloatArray) -> tuple[FloatArray, FloatArray]:

@@ -182,12 +182,12 @@ def _crossroad_starts(p: BrambillaParams) -> tuple[np.ndarray, np.ndarray]:
     return -behind[:, None] * direction + p.lane_offset * right, heading
 
 
-def _features(p: BrambillaParams, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Feature start states (K, 4) and their sidewalk directions (K,)."""
+def _features(p: BrambillaParams, rng: np.random.Generator) -> np.ndarray:
+    """Feature start states (K, 4): on the sidewalks, walking along them at v_f."""
     K = p.n_features
     if p.geometry == "road":
         x = p.feature_spacing * np.arange(K)
-        return np.stack([x, np.full(K, p.sidewalk_offset), np.zeros(K), np.zeros(K)], axis=1), np.zeros(K)
+        return np.stack([x, np.full(K, p.sidewalk_offset), np.zeros(K), np.zeros(K)], axis=1)
     side = rng.integers(0, 4, size=K)          # sidewalks y = ±s (along x) and x = ±s (along y)
     along = rng.uniform(p.sidewalk_offset, p.feature_radius, size=K) * rng.choice([-1.0, 1.0], size=K)
     offset = np.where(side % 2 == 0, 1.0, -1.0) * p.sidewalk_offset
@@ -195,7 +195,7 @@ def _features(p: BrambillaParams, rng: np.random.Generator) -> tuple[np.ndarray,
     pos = np.where(along_x[:, None], np.stack([along, offset], 1), np.stack([offset, along], 1))
     direction = np.where(along_x, 0.0, np.pi / 2) + np.pi * (rng.random(K) < 0.5)
     vel = p.feature_speed * np.stack([np.cos(direction), np.sin(direction)], axis=1)
-    return np.concatenate([pos, vel], axis=1), direction
+    return np.concatenate([pos, vel], axis=1)
 
 
 def generate(params: BrambillaParams, rng: np.random.Generator) -> Recording:
@@ -219,7 +219,7 @@ def generate(params: BrambillaParams, rng: np.random.Generator) -> Recording:
     spread = rng_vehicles.normal(size=(N, 2)) * [p.start_position_std, p.start_speed_std]
     x0 = nominal + np.einsum("nij,nj->ni", E, spread)
     vehicles = simulate(vehicle_motion, x0, T, dt, rng_vehicles)                      # (T, N, 4)
-    f0, _ = _features(p, rng_features)
+    f0 = _features(p, rng_features)
     features = simulate(feature_motion, f0, T, dt, rng_features) if K else np.zeros((T, 0, 4))
 
     gnss_cov = np.diag([p.gnss_position_std**2] * 2 + [p.gnss_velocity_std**2] * 2)
