@@ -13,18 +13,14 @@ kernel costs J² per vehicle–feature pair; the paper used J = 5000).
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import sys
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from run import _recording, time_estimator  # the shared timing of benchmarks/run.py
+from run import _recording, environment, time_estimator, write_json  # shared with benchmarks/run.py
 
-from cooploc import __version__
 from cooploc.estimators import get_estimator, make_estimator
 
 NAMES = ("icp", "icp-da-lc", "icp-da-pf")
@@ -51,9 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "icp.json")
     args = parser.parse_args(argv)
     repeats = 1 if args.quick else args.repeats
-    results: dict = {"cooploc_version": __version__, "python": sys.version.split()[0],
-                     "numpy": np.__version__, "machine": platform.machine(), "cpu_count": os.cpu_count(),
-                     "scenarios": {}, "icp-da-pf_vs_particles": {}}
+    results: dict = {**environment(), "scenarios": {}, "icp-da-pf_vs_particles": {}}
     scenarios = {"brambilla-road": {}, "brambilla-crossroad": {"n_features": 20}}
     if args.quick:
         scenarios["brambilla-crossroad"]["n_steps"] = 8
@@ -75,9 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         timing = time_estimator("icp-da-pf", rec, 1, params)
         results["icp-da-pf_vs_particles"][str(J)] = timing
         print(f"icp-da-pf J = {J:5d}: {timing['steps_per_second']:8.2f} steps/s")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=2) + "\n")
-    print(f"written {args.out}")
+    write_json(results, args.out)
     return 0
 
 

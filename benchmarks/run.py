@@ -40,6 +40,19 @@ def _recording(preset_name: str, seed: int, overrides: dict):
     return preset.generate(np.random.default_rng(seed), params)
 
 
+def environment() -> dict:
+    """What the numbers depend on: cooploc, Python and NumPy versions, machine, CPU count."""
+    return {"cooploc_version": __version__, "python": sys.version.split()[0], "numpy": np.__version__,
+            "machine": platform.machine(), "cpu_count": os.cpu_count()}
+
+
+def write_json(results: dict, out: Path) -> None:
+    """Write the results (creating the folder) and say where."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(results, indent=2) + "\n")
+    print(f"written {out}")
+
+
 def time_estimator(name: str, recording, repeats: int, params=None) -> dict:
     """Best-of-`repeats` time inside `step` over the recording, and peak memory."""
     best = np.inf
@@ -119,14 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     names = args.estimator or sorted(estimators())
     steps = 20 if args.quick else args.steps
     repeats = 1 if args.quick else args.repeats
-    results: dict = {
-        "cooploc_version": __version__,
-        "python": sys.version.split()[0],
-        "numpy": np.__version__,
-        "machine": platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "estimators": {},
-    }
+    results: dict = {**environment(), "estimators": {}}
     for name in names:
         cls = estimators()[name]
         overrides = {} if steps is None else {"n_steps": steps}
@@ -142,9 +148,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{scaling['gnss_kf_us_per_vehicle_step']:.2f} µs per vehicle-step"
               + (f"; filterpy KalmanFilter {scaling['filterpy_us_per_vehicle_step']:.1f} µs"
                  if "filterpy_us_per_vehicle_step" in scaling else ""))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=2) + "\n")
-    print(f"written {args.out}")
+    write_json(results, args.out)
     return 0
 
 
