@@ -56,7 +56,6 @@ class Network:
         both = both[np.lexsort((both[:, 1], both[:, 0]))]
         self.target: IntArray = both[:, 0]
         self.source: IntArray = both[:, 1]
-        self.degree: IntArray = np.bincount(self.target, minlength=n)
         self.messages = 0
         self.bytes = 0
 
