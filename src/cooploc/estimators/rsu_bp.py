@@ -30,10 +30,12 @@ Complexity O(S K M N_p² (1 + I)) kernel work, done as one numba pass that fills
 (S K M N_p² doubles; with more than `kernel_memory_mb` the kernel is recomputed per
 use instead of stored), plus O(S K M P) for the association.
 
-Measured (`python benchmarks/rsu_bp.py`, froehle2018, 2 runs × 501 steps, quiet 2-core
-machine): N_p = 600 — 18.5 steps/s, vehicle-2 RMSE 0.92 m against 0.67 m for
-`oracle-kf` (1.37 ×) and 2.41 m for `gnss-kf`; N_p = 2000 (1 run, 201 steps) —
-1.3 steps/s, 1.22 × the bound. The gap to the bound is BP's: beliefs are products of
+Measured (`python benchmarks/rsu_bp.py`, froehle2018, quiet 2-core machine): N_p = 600,
+10 runs × 501 steps — 28 steps/s, vehicle-2 RMSE 0.87 m against 0.71 m for `oracle-kf`
+(1.23 ×, bootstrap 90 % interval 1.18–1.27 over runs) and 2.52 m for `gnss-kf`;
+N_p = 2000 (1 run, 201 steps) — 2.6 steps/s, 1.22 × the bound. A single run's RMSE
+is a time average of strongly correlated errors, so a ratio from two runs can land
+anywhere in 1.1–1.4. The gap to the bound is BP's: beliefs are products of
 marginals, so the vehicle–feature correlation that the joint Kalman filter keeps is
 dropped every step (the paper's §V-B remark), plus particle noise that shrinks with N_p.
 

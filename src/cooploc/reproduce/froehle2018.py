@@ -219,9 +219,9 @@ def _method_rows(data: dict[str, Any]) -> list[str]:
         f"| Fig. 5: vehicle 2 decreases with K | decreases | {curve(bp5.get('1'))} m for K = 0 … 6 |",
         f"| Fig. 5: vehicle 1 almost constant in K | flat | {curve(bp5.get('0'))} m |",
         f"| speed (not in the paper) | – | {format_number(speed)} steps/s inside `step` |",
-        f"| association accuracy (not in the paper) | – | {format_number(accuracy)} — by feature "
-        "id, which is arbitrary for features with identical priors (see `rsu-bp` docs): a "
-        "lower bound on the real accuracy |",
+        f"| association accuracy (not in the paper) | – | {format_number(accuracy)} — share of V2F "
+        "rows given to the estimated feature whose rows mostly come from the same true feature "
+        "(`rsu-bp` names its features itself: they share one prior) |",
     ]
 
 
