@@ -538,6 +538,24 @@ class Truth:
                             ("origin", origin), ("sensor_poses", poses)):
             object.__setattr__(self, name, value)
 
+    @classmethod
+    def vehicles_only(cls, vehicle_ids: npt.ArrayLike, vehicle_states: npt.ArrayLike,
+                      origin: Sequence[Mapping[str, IntArray]],
+                      sensor_poses: npt.ArrayLike | None = None) -> Truth:
+        """The truth of a run without features whose vehicles are present at every step."""
+        states = np.asarray(vehicle_states, dtype=float)
+        n_steps, n_vehicles, dx = states.shape
+        return cls(
+            vehicle_ids=vehicle_ids,
+            vehicle_states=states,
+            vehicle_present=np.ones((n_steps, n_vehicles), dtype=bool),
+            feature_ids=np.zeros(0, dtype=np.int64),
+            feature_states=np.zeros((n_steps, 0, dx)),
+            feature_present=np.zeros((n_steps, 0), dtype=bool),
+            origin=origin,
+            sensor_poses=np.zeros((0, 3)) if sensor_poses is None else sensor_poses,
+        )
+
     @property
     def n_steps(self) -> int:
         return self.vehicle_states.shape[0]

@@ -227,15 +227,7 @@ def generate(params: AoaGridParams, rng: np.random.Generator) -> Recording:
     )
     wrapped = states.copy()
     wrapped[..., 2] = (wrapped[..., 2] + np.pi) % (2 * np.pi) - np.pi
-    truth = Truth(
-        vehicle_ids=ids,
-        vehicle_states=wrapped,
-        vehicle_present=np.ones((T, n), dtype=bool),
-        feature_ids=np.zeros(0, dtype=np.int64),
-        feature_states=np.zeros((T, 0, 3)),
-        feature_present=np.zeros((T, 0), dtype=bool),
-        origin=origins,
-    )
+    truth = Truth.vehicles_only(ids, wrapped, origins)
     return Recording(setup, frames, truth)
 
 

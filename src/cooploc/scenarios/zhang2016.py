@@ -207,16 +207,7 @@ def generate(params: ZhangParams, rng: np.random.Generator) -> Recording:
         description=f"Zhang 2016 §4.1: {N} vehicles ({turning} turning), anonymous GPS and "
                     f"a radar of unknown pose, {T} steps of {dt} s",
     )
-    truth = Truth(
-        vehicle_ids=ids,
-        vehicle_states=states,
-        vehicle_present=np.ones((T, N), dtype=bool),
-        feature_ids=np.zeros(0, np.int64),
-        feature_states=np.zeros((T, 0, 4)),
-        feature_present=np.zeros((T, 0), dtype=bool),
-        origin=origins,
-        sensor_poses=pose[None],
-    )
+    truth = Truth.vehicles_only(ids, states, origins, pose[None])
     return Recording(setup, frames, truth)
 
 
