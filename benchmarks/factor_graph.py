@@ -23,17 +23,17 @@ shared, CPU time is the steadier number):
 3. `horizon`: `gtsam_naive` vs `sparse` LM time against the number of steps.
 4. `isam2`: ms per step of fg-isam2 before (naive CustomFactor, relinearise every step)
    and after (scalar CustomFactor, GTSAM's default relinearize_skip = 10).
+
+The JSON also records the environment of `common.environment()` (versions, platform,
+CPU count, load average at start and end).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 import time
-import tracemalloc
 from collections.abc import Callable
 from contextlib import contextmanager
 from functools import partial
@@ -42,17 +42,12 @@ from typing import Any
 
 import numpy as np
 
-from cooploc import __version__
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when loaded from the file
+from common import environment, new_estimator, peak_memory, recording, write_json
+
 from cooploc.estimators import factor_graph as fg
-from cooploc.estimators import make_estimator
-from cooploc.scenarios import get_preset
 
 ESTIMATORS = ("gnss-kf", "fg-topology-old", "fg-topology-new", "fg-isam2")
-
-
-def recording(n: int, steps: int, seed: int = 0):
-    preset = get_preset(f"gulati-{n}v")
-    return preset.generate(np.random.default_rng(seed), preset.params.with_overrides({"n_steps": steps}))
 
 
 def timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:
@@ -66,18 +61,10 @@ def timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:
 
 
 def run_estimator(name: str, rec, params=None) -> list:
-    est = make_estimator(name, rec.setup, params, np.random.default_rng(0))
+    est = new_estimator(name, rec, params)
     out = [est.step(f) for f in rec.frames]
     smooth = getattr(est, "smooth", None)
     return smooth() if callable(smooth) else out
-
-
-def peak_memory(fn: Callable[[], Any]) -> int:
-    tracemalloc.start()
-    fn()
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
-    return int(peak)
 
 
 def naive_topology_factor(kind, keys_t, keys_prev, delta, s, sigma, huber=0.0):
@@ -116,7 +103,7 @@ def naive_factor():
 
 
 def built_graph(name: str, rec):
-    est = make_estimator(name, rec.setup, None, np.random.default_rng(0))
+    est = new_estimator(name, rec)
     for f in rec.frames:
         est.step(f)
     return est
@@ -196,14 +183,13 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     horizons = (20, 40) if args.quick else (125, 250, 500, 1000)
 
     result: dict[str, Any] = {
-        "cooploc_version": __version__, "python": sys.version.split()[0],
-        "numpy": np.__version__, "platform": platform.platform(), "cpu_count": os.cpu_count(),
+        **environment(),
         "steps": steps, "repeats": repeats, "quick": args.quick,
         "estimators": {}, "batch_solve": {}, "isam2": {}, "horizon": {},
     }
     fg._banded_inverse(np.ones((1, 1)))  # numba compile outside the timings
     for n in counts:
-        rec = recording(n, steps)
+        rec = recording(f"gulati-{n}v", 0, {"n_steps": steps})
         rows = {}
         for name in ESTIMATORS:
             wall, cpu, _ = timed(partial(run_estimator, name, rec), repeats)
@@ -215,7 +201,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         result["batch_solve"][f"{n}v"] = batch_solve(rec, repeats)
         result["isam2"][f"{n}v"] = isam2(rec, repeats)
     for T in horizons:
-        rec = recording(2, T)
+        rec = recording("gulati-2v", 0, {"n_steps": T})
         est = built_graph("fg-topology-new", rec)
         data, x0 = est.data, np.concatenate(est.initial)
         with naive_factor():
@@ -225,8 +211,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "gtsam_naive": _solve_row(partial(gtsam_cost, graph, x0), repeats),
             "sparse": _solve_row(partial(sparse_cost, problem, x0), repeats),
         }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    write_json(result, args.out)
     print(json.dumps({k: result[k] for k in ("batch_solve", "isam2")}, indent=1)[:3000])
     return result
 

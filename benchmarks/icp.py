@@ -16,26 +16,24 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when loaded from the file
+from common import environment, new_estimator, recording, time_estimator, write_json
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from run import _recording, environment, time_estimator, write_json  # shared with benchmarks/run.py
-
-from cooploc.estimators import get_estimator, make_estimator
+from cooploc.estimators import get_estimator
 
 NAMES = ("icp", "icp-da-lc", "icp-da-pf")
 
 
-def traffic(name: str, recording, params=None) -> dict:
+def traffic(name: str, rec, params=None) -> dict:
     """Mean V2V messages and bytes per step and per vehicle."""
-    est = make_estimator(name, recording.setup, params, np.random.default_rng(0), recording.truth)
+    est = new_estimator(name, rec, params)
     messages = bytes_ = vehicles = 0
-    for frame in recording.frames:
+    for frame in rec.frames:
         info = est.step(frame).info
         messages += info["messages"]
         bytes_ += info["bytes"]
         vehicles += frame.vehicles.size
-    n = len(recording.frames)
+    n = len(rec.frames)
     return {"messages_per_step": messages / n, "bytes_per_step": bytes_ / n,
             "bytes_per_vehicle_step": bytes_ / max(vehicles, 1)}
 
@@ -52,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         scenarios["brambilla-crossroad"]["n_steps"] = 8
     for preset, overrides in scenarios.items():
-        rec = _recording(preset, 1, overrides)
+        rec = recording(preset, 1, overrides)
         entry = {}
         for name in NAMES:
             params = None
@@ -63,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name:>10} on {preset}: {timing['steps_per_second']:8.1f} steps/s, "
                   f"{entry[name]['bytes_per_vehicle_step']:9.0f} B per vehicle-step")
         results["scenarios"][preset] = entry
-    rec = _recording("brambilla-road", 1, {})
+    rec = recording("brambilla-road", 1)
     for J in ((50, 100) if args.quick else (200, 500, 1000, 2000, 5000)):
         params = get_estimator("icp-da-pf").Params(n_particles=J)
         timing = time_estimator("icp-da-pf", rec, 1, params)

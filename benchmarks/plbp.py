@@ -11,24 +11,21 @@ inside `step`, J = 5, L = 3; numba compiled beforehand), µs per link, links, Ao
 and peak traced memory of a separate pass (tracemalloc slows Python down). Also the
 steps per second of `plbp` on `aoa-grid-tracking`. Target (issue 7): 1000 vehicles in
 under 1 s on 2 cores. Numbers depend on the machine and its load; the JSON records the
-CPU count and the load average at the start.
+environment of `common.environment()` (versions, platform, CPU count, load average at
+start and end).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import sys
-import time
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
 
-from cooploc import __version__
-from cooploc.estimators import make_estimator
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when loaded from the file
+from common import environment, new_estimator, recording, time_steps, write_json
+
 from cooploc.scenarios import get_preset
 
 SIZES = (51, 204, 459, 1000)
@@ -38,35 +35,20 @@ TARGET_SECONDS = 1.0
 
 
 def snapshot(n_vehicles: int, seed: int):
-    """One `aoa-grid` snapshot with `n_vehicles` at the default density."""
-    preset = get_preset("aoa-grid")
-    base = preset.params
+    """One `aoa-grid` snapshot with `n_vehicles` at the default density, and its parameters."""
+    base = get_preset("aoa-grid").params
     grid = base.grid_size * np.sqrt(n_vehicles / base.n_vehicles)
-    params = base.with_overrides({"n_vehicles": n_vehicles, "grid_size": float(grid)})
-    return preset.generate(np.random.default_rng(seed), params), params
+    overrides = {"n_vehicles": n_vehicles, "grid_size": float(grid)}
+    return recording("aoa-grid", seed, overrides), base.with_overrides(overrides)
 
 
-def time_snapshot(name: str, recording, repeats: int) -> dict:
-    """Best-of-`repeats` seconds inside `step` for the recording's frames, and peak memory."""
-    best = np.inf
-    for r in range(repeats):
-        est = make_estimator(name, recording.setup, None, np.random.default_rng(r))
-        spent = 0.0
-        for frame in recording.frames:
-            start = time.perf_counter()
-            estimate = est.step(frame)
-            spent += time.perf_counter() - start
-        best = min(best, spent)
-    est = make_estimator(name, recording.setup, None, np.random.default_rng(0))
-    tracemalloc.start()
-    for frame in recording.frames:
-        est.step(frame)
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
-    n = len(recording.frames)
-    return {"seconds_per_step": best / n, "steps_per_second": n / best,
-            "us_per_step": best / n * 1e6, "n_links": int(estimate.info["n_links"]),
-            "peak_memory_bytes": int(peak)}
+def time_snapshot(name: str, rec, repeats: int) -> dict:
+    """Best-of-`repeats` seconds inside `step` for the recording's frames, the links of
+    the last frame, and peak memory."""
+    timing, estimates = time_steps(name, rec, repeats)
+    return {"seconds_per_step": timing["seconds"] / timing["steps"],
+            "steps_per_second": timing["steps_per_second"], "us_per_step": timing["us_per_step"],
+            "n_links": int(estimates[-1].info["n_links"]), "peak_memory_bytes": timing["peak_memory_bytes"]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -80,12 +62,10 @@ def main(argv: list[str] | None = None) -> int:
 
     warm, _ = snapshot(51, 0)                          # compile the numba kernels first
     for name in ESTIMATORS:
-        make_estimator(name, warm.setup, None, np.random.default_rng(0)).step(warm.frames[0])
+        new_estimator(name, warm).step(warm.frames[0])
 
     results: dict = {
-        "cooploc_version": __version__, "python": sys.version.split()[0], "numpy": np.__version__,
-        "machine": platform.machine(), "cpu_count": os.cpu_count(),
-        "load_average_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
+        **environment(),
         "target_seconds_1000_vehicles": TARGET_SECONDS, "snapshots": [],
     }
     for n in sizes:
@@ -102,14 +82,11 @@ def main(argv: list[str] | None = None) -> int:
                   f"{timing['us_per_link']:5.2f} µs per link, "
                   f"peak {timing['peak_memory_bytes'] / 1e6:.1f} MB")
         results["snapshots"].append(entry)
-    tracking = get_preset("aoa-grid-tracking")
-    rec = tracking.generate(np.random.default_rng(2), tracking.params)
+    rec = recording("aoa-grid-tracking", 2)
     results["tracking"] = {"preset": "aoa-grid-tracking", "n_steps": len(rec.frames),
                            "plbp": time_snapshot("plbp", rec, repeats)}
     print(f"plbp on aoa-grid-tracking: {results['tracking']['plbp']['steps_per_second']:.1f} steps/s")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=2) + "\n")
-    print(f"written {args.out}")
+    write_json(results, args.out)
     return 0
 
 

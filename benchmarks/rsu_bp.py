@@ -21,51 +21,34 @@ Measured in one run, on the same machine and data:
    - `pair_kernel_numpy` — a plain NumPy broadcast in float64.
    Each is the best of `repeats` calls after one warm-up call (numba compilation).
 
-The machine is shared: the load average at the start and end is recorded, since
-numbers from a loaded 2-core machine are lower bounds.
+The machine is shared: the load average at the start and end is recorded with the
+versions and platform (`common.environment()`), since numbers from a loaded 2-core
+machine are lower bounds.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 import time
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
 
-from cooploc import __version__
-from cooploc.estimators import make_estimator
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when loaded from the file
+from common import environment, new_estimator, recording, run_steps, step_memory, write_json
+
 from cooploc.estimators.rsu_bp import RsuBPParams
 from cooploc.metrics import VEHICLE, evaluate, per_entity_rmse
 from cooploc.particles import pair_kernel, pair_kernel_log_sum, pair_kernel_numpy
-from cooploc.scenarios import get_preset
 
 ORACLE_TARGET = 1.25    # vehicle-1 RMSE of rsu-bp within 25 % of oracle-kf
 SPEED_TARGET = 20.0     # steps per second at N_p = 600
 
 
-def _recording(seed: int, n_steps: int):
-    preset = get_preset("froehle2018")
-    return preset.generate(np.random.default_rng(seed), preset.params.with_overrides({"n_steps": n_steps}))
-
-
-def _run(name: str, recording, params, seed: int) -> tuple[float, list]:
-    est = make_estimator(name, recording.setup, params, np.random.default_rng(seed), recording.truth)
-    spent, estimates = 0.0, []
-    for frame in recording.frames:
-        start = time.perf_counter()
-        estimates.append(est.step(frame))
-        spent += time.perf_counter() - start
-    return spent, estimates
-
-
-def _vehicle_rmse(recording, estimates) -> dict[str, float]:
-    table = evaluate(recording, estimates)
+def _vehicle_rmse(rec, estimates) -> dict[str, float]:
+    table = evaluate(rec, estimates)
     rows = table.kind == VEHICLE
     return {str(k): v for k, v in per_entity_rmse(table.id[rows], table.err_pos[rows]).items()}
 
@@ -76,19 +59,17 @@ def time_rsu_bp(n_particles: int, n_steps: int, seeds: list[int]) -> dict:
     seconds = steps = 0.0
     rmse: dict[str, list[dict[str, float]]] = {"rsu-bp": [], "oracle-kf": [], "gnss-kf": []}
     for seed in seeds:
-        rec = _recording(seed, n_steps)
-        spent, estimates = _run("rsu-bp", rec, params, seed)
+        rec = recording("froehle2018", seed, {"n_steps": n_steps})
+        spent, estimates = run_steps(new_estimator("rsu-bp", rec, params, seed), rec.frames)
         seconds, steps = seconds + spent, steps + len(rec.frames)
         rmse["rsu-bp"].append(_vehicle_rmse(rec, estimates))
         for ref in ("oracle-kf", "gnss-kf"):
-            rmse[ref].append(_vehicle_rmse(rec, _run(ref, rec, None, seed)[1]))
+            _, estimates = run_steps(new_estimator(ref, rec, None, seed), rec.frames)
+            rmse[ref].append(_vehicle_rmse(rec, estimates))
     mean_rmse = {name: {vid: float(np.sqrt(np.mean([r[vid] ** 2 for r in runs])))
                         for vid in runs[0]} for name, runs in rmse.items()}
-    rec = _recording(seeds[0], min(n_steps, 20))
-    tracemalloc.start()
-    _run("rsu-bp", rec, params, 0)
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
+    rec = recording("froehle2018", seeds[0], {"n_steps": min(n_steps, 20)})
+    peak = step_memory(new_estimator("rsu-bp", rec, params), rec.frames)
     ratio = mean_rmse["rsu-bp"]["1"] / mean_rmse["oracle-kf"]["1"]
     low, high = _bootstrap_ratio([r["1"] for r in rmse["rsu-bp"]], [r["1"] for r in rmse["oracle-kf"]])
     return {
@@ -99,7 +80,7 @@ def time_rsu_bp(n_particles: int, n_steps: int, seeds: list[int]) -> dict:
         "vehicle1_rmse_over_oracle": ratio,
         "vehicle1_rmse_over_oracle_90pct_interval": [low, high],
         "accuracy_target_met": bool(ratio <= ORACLE_TARGET),
-        "peak_memory_bytes_20_steps": int(peak),
+        "peak_memory_bytes_20_steps": peak,
     }
 
 
@@ -155,11 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     steps = args.steps or (6 if args.quick else 501)
     runs = args.runs or (1 if args.quick else 10)
     particles = (50, 100) if args.quick else (600, 2000)
-    load_start = os.getloadavg()[0]
     result = {
-        "cooploc_version": __version__,
-        "python": sys.version.split()[0], "numpy": np.__version__, "platform": platform.platform(),
-        "cpu_count": os.cpu_count(), "load_average_start": load_start,
+        **environment(),
         "targets": {"vehicle1_rmse_over_oracle_at_most": ORACLE_TARGET,
                     "steps_per_second_at_600_at_least": SPEED_TARGET},
         "rsu_bp": {},
@@ -171,11 +149,9 @@ def main(argv: list[str] | None = None) -> int:
         big = n == particles[-1]
         result["rsu_bp"][str(n)] = time_rsu_bp(n, min(steps, 201) if big else steps,
                                                list(range(1 if big else runs)))
-    result["load_average_end"] = os.getloadavg()[0]
     if not args.quick:
         result["speed_target_met"] = bool(result["rsu_bp"]["600"]["steps_per_second"] >= SPEED_TARGET)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    write_json(result, args.out)
     print(json.dumps(result, indent=2))
     return 0
 

@@ -13,77 +13,29 @@ Extra measurements:
   beside filterpy's `KalmanFilter` predict+update of one target (µs per vehicle-step),
   measured in the same run on the same data.
 
-Numbers depend on the machine; the JSON records Python, NumPy and CPU count.
+Numbers depend on the machine and its load; the JSON records the environment of
+`common.environment()` (versions, platform, CPU count, load average at start and end).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
 import sys
 import time
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
 
-from cooploc import __version__
-from cooploc.estimators import estimators, make_estimator
-from cooploc.scenarios import get_preset
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when loaded from the file
+from common import environment, recording, time_estimator, write_json
 
-
-def _recording(preset_name: str, seed: int, overrides: dict):
-    preset = get_preset(preset_name)
-    params = preset.params.with_overrides(overrides)
-    return preset.generate(np.random.default_rng(seed), params)
-
-
-def environment() -> dict:
-    """What the numbers depend on: cooploc, Python and NumPy versions, machine, CPU count."""
-    return {"cooploc_version": __version__, "python": sys.version.split()[0], "numpy": np.__version__,
-            "machine": platform.machine(), "cpu_count": os.cpu_count()}
-
-
-def write_json(results: dict, out: Path) -> None:
-    """Write the results (creating the folder) and say where."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(results, indent=2) + "\n")
-    print(f"written {out}")
-
-
-def time_estimator(name: str, recording, repeats: int, params=None) -> dict:
-    """Best-of-`repeats` time inside `step` over the recording, and peak memory."""
-    best = np.inf
-    for r in range(repeats):
-        est = make_estimator(name, recording.setup, params, np.random.default_rng(r), recording.truth)
-        spent = 0.0
-        for frame in recording.frames:
-            start = time.perf_counter()
-            est.step(frame)
-            spent += time.perf_counter() - start
-        best = min(best, spent)
-    est = make_estimator(name, recording.setup, params, np.random.default_rng(0), recording.truth)
-    tracemalloc.start()
-    for frame in recording.frames:
-        est.step(frame)
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
-    n = len(recording.frames)
-    return {
-        "steps": n,
-        "seconds": best,
-        "steps_per_second": n / best,
-        "us_per_step": best / n * 1e6,
-        "peak_memory_bytes": int(peak),
-    }
+from cooploc.estimators import estimators
 
 
 def gnss_kf_scaling(n_vehicles: int, n_steps: int, repeats: int) -> dict:
     """gnss-kf with many vehicles against filterpy's KalmanFilter on the same data."""
-    rec = _recording("froehle2018", 7, {"n_vehicles": n_vehicles, "n_features": 0,
-                                         "n_steps": n_steps, "gnss_variances": (15.0,)})
+    rec = recording("froehle2018", 7, {"n_vehicles": n_vehicles, "n_features": 0,
+                                        "n_steps": n_steps, "gnss_variances": (15.0,)})
     ours = time_estimator("gnss-kf", rec, repeats)
     out = {"n_vehicles": n_vehicles, "n_steps": n_steps,
            "gnss_kf_us_per_vehicle_step": ours["us_per_step"] / n_vehicles,
@@ -136,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in names:
         cls = estimators()[name]
         overrides = {} if steps is None else {"n_steps": steps}
-        rec = _recording(cls.default_preset, 0, overrides)
+        rec = recording(cls.default_preset, 0, overrides)
         entry = {"preset": cls.default_preset, **time_estimator(name, rec, repeats)}
         results["estimators"][name] = entry
         print(f"{name:>12} on {cls.default_preset}: {entry['steps_per_second']:9.1f} steps/s, "

@@ -14,48 +14,38 @@ Sections (all on `zhang2016-cv`, seeds fixed, time inside `step` only):
   same recording (5 targets); Stone Soup is optional here (skipped if not installed).
 - ``memory``: peak traced memory (tracemalloc, separate pass) of each estimator.
 
-Numbers depend on the machine; the JSON records Python, NumPy and the CPU count.
+Numbers depend on the machine and its load; the JSON records the environment of
+`common.environment()` (versions, platform, CPU count, load average at start and end).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
-import time
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
 
-from cooploc import __version__
-from cooploc.estimators import get_estimator, make_estimator
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when loaded from the file
+from common import environment, new_estimator, recording, run_steps, step_memory, write_json
+
+from cooploc.estimators import get_estimator
 from cooploc.metrics import set_errors
-from cooploc.scenarios import get_preset
 
 PARTICLES = (250, 500, 1000, 2000, 4000)
 ESTIMATORS = ("sme-pf", "sme-ukf", "gm-phd", "kf-known-da")
 
 
-def _recording(seed: int, n_steps: int | None = None, preset: str = "zhang2016-cv"):
-    p = get_preset(preset)
-    params = p.params if n_steps is None else p.params.with_overrides({"n_steps": n_steps})
-    return p.generate(np.random.default_rng(seed), params)
+def _recording(seed: int, n_steps: int | None = None):
+    return recording("zhang2016-cv", seed, None if n_steps is None else {"n_steps": n_steps})
 
 
-def _run(name: str, recording, params=None, seed: int = 0) -> tuple[float, float]:
+def _run(name: str, rec, params=None, seed: int = 0) -> tuple[float, float]:
     """(total error of eq. 20, seconds inside step) of one run."""
-    est = make_estimator(name, recording.setup, params, np.random.default_rng(seed), recording.truth)
-    spent, sq = 0.0, []
-    for frame in recording.frames:
-        start = time.perf_counter()
-        estimate = est.step(frame)
-        spent += time.perf_counter() - start
-        true = recording.truth.vehicle_states[frame.k][:, :2]
-        err = set_errors(estimate.vehicles.mean[:, :2], true)
-        sq.append(np.sum(err**2))
+    spent, estimates = run_steps(new_estimator(name, rec, params, seed), rec.frames)
+    true = (rec.truth.vehicle_states[frame.k][:, :2] for frame in rec.frames)
+    sq = [np.sum(set_errors(e.vehicles.mean[:, :2], t) ** 2) for e, t in zip(estimates, true, strict=True)]
     return float(np.sqrt(np.mean(sq))), spent
 
 
@@ -100,14 +90,9 @@ def memory(n_steps: int | None) -> dict:
     rec = _recording(3, n_steps)
     out = {}
     for name in ESTIMATORS:
-        est = make_estimator(name, rec.setup, None, np.random.default_rng(0), rec.truth)
+        est = new_estimator(name, rec)
         est.step(rec.frames[0])  # compile / warm up outside the trace
-        tracemalloc.start()
-        for frame in rec.frames[1:]:
-            est.step(frame)
-        _, peak = tracemalloc.get_traced_memory()
-        tracemalloc.stop()
-        out[name] = peak
+        out[name] = step_memory(est, rec.frames[1:])
     return out
 
 
@@ -121,18 +106,14 @@ def main(argv: list[str] | None = None) -> int:
     n_steps = 12 if args.quick else None
     runs = 2 if args.quick else args.runs
     counts = (100, 200) if args.quick else PARTICLES
-    data: dict = {
-        "cooploc_version": __version__, "python": platform.python_version(),
-        "numpy": np.__version__, "cpu_count": os.cpu_count(), "quick": args.quick,
-    }
+    data: dict = {**environment(), "quick": args.quick}
     if args.only in (None, "particles"):
         data["sme_pf_particles"] = particle_curve(runs, n_steps, counts)
     if args.only in (None, "gm_phd"):
         data["gm_phd"] = gm_phd_timing(n_steps, 1 if args.quick else 3)
     if args.only in (None, "memory"):
         data["peak_memory_bytes"] = memory(n_steps)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(data, indent=2) + "\n")
+    write_json(data, args.out)
     print(json.dumps(data, indent=2))
     return 0
 

@@ -4,23 +4,17 @@ from __future__ import annotations
 
 import importlib.util
 import json
-import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_icp_benchmark_writes_json(tmp_path):
-    path = ROOT / "benchmarks" / "icp.py"
-    spec = importlib.util.spec_from_file_location("bench_icp", path)
+    spec = importlib.util.spec_from_file_location("bench_icp", ROOT / "benchmarks" / "icp.py")
     module = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(path.parent))
-    try:
-        spec.loader.exec_module(module)
-        out = tmp_path / "icp.json"
-        assert module.main(["--quick", "--out", str(out)]) == 0
-    finally:
-        sys.path.remove(str(path.parent))
+    spec.loader.exec_module(module)
+    out = tmp_path / "icp.json"
+    assert module.main(["--quick", "--out", str(out)]) == 0
     data = json.loads(out.read_text())
     for preset in ("brambilla-road", "brambilla-crossroad"):
         for name in ("icp", "icp-da-lc", "icp-da-pf"):

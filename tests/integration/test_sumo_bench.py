@@ -1,4 +1,4 @@
-"""benchmarks/sumo.py runs at quick size and writes its JSON (no timing asserted)."""
+"""benchmarks/sumo_traffic.py runs at quick size and writes its JSON (no timing asserted)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_sumo_benchmark_writes_json(tmp_path, monkeypatch):
     monkeypatch.setenv("COOPLOC_CACHE_DIR", str(tmp_path / "cache"))
-    # not named "sumo": that is Eclipse SUMO's package
-    spec = importlib.util.spec_from_file_location("benchmark_sumo", ROOT / "benchmarks" / "sumo.py")
+    spec = importlib.util.spec_from_file_location("benchmark_sumo", ROOT / "benchmarks" / "sumo_traffic.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     out = tmp_path / "bench.json"

@@ -1,8 +1,8 @@
 """Time the `sumo-*` scenarios: SUMO simulation and Recording build per simulated minute.
 
-    python benchmarks/sumo.py                       # every sumo-* preset, 300 s each
-    python benchmarks/sumo.py --duration 600 -p sumo-berlin-tlr
-    python benchmarks/sumo.py --quick               # grid presets, 20 s: checks the runner
+    python benchmarks/sumo_traffic.py                       # every sumo-* preset, 300 s each
+    python benchmarks/sumo_traffic.py --duration 600 -p sumo-berlin-tlr
+    python benchmarks/sumo_traffic.py --quick               # grid presets, 20 s: checks the runner
 
 For each preset, three passes on the same traffic seed:
 
@@ -16,30 +16,29 @@ For each preset, three passes on the same traffic seed:
 Times are reported in seconds per simulated minute (recorded time; the warm-up is
 simulated too and included in `simulate`), with the mean number of vehicles and
 features present, steps/s and µs per step of the build. The cache goes to a temporary
-folder, so the user's cache is not touched. Numbers depend on the machine; the JSON
-records Python, NumPy, SUMO and the CPU count.
+folder, so the user's cache is not touched. Numbers depend on the machine and its load;
+the JSON records the SUMO version and the environment of `common.environment()`
+(versions, platform, CPU count, load average at start and end).
+
+Not called sumo.py: run from this folder, that name would shadow Eclipse SUMO's `sumo`
+package.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import sys
 import tempfile
 import time
-import tracemalloc
 from pathlib import Path
 
-# This script is called sumo.py: drop its folder from the path so that `import sumo`
-# finds Eclipse SUMO, not this file.
-sys.path = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+import numpy as np
 
-import numpy as np  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when loaded from the file
+from common import environment, peak_memory, write_json
 
-from cooploc import __version__  # noqa: E402
-from cooploc.scenarios import get_preset, presets  # noqa: E402
+from cooploc.scenarios import get_preset, presets
 
 
 def time_preset(name: str, duration: float, seed: int) -> dict:
@@ -53,10 +52,7 @@ def time_preset(name: str, duration: float, seed: int) -> dict:
     start = time.perf_counter()
     recording = sumo.generate(params, np.random.default_rng(0))
     build = time.perf_counter() - start
-    tracemalloc.start()
-    sumo.generate(params, np.random.default_rng(0))
-    _, peak = tracemalloc.get_traced_memory()
-    tracemalloc.stop()
+    peak = peak_memory(lambda: sumo.generate(params, np.random.default_rng(0)))
     minutes = params.n_steps * params.dt / 60.0
     steps = len(recording.frames)
     return {
@@ -72,7 +68,7 @@ def time_preset(name: str, duration: float, seed: int) -> dict:
         "build_seconds_per_minute": build / minutes,
         "build_steps_per_second": steps / build,
         "build_us_per_step": build / steps * 1e6,
-        "build_peak_memory_bytes": int(peak),
+        "build_peak_memory_bytes": peak,
     }
 
 
@@ -91,15 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         names = [n for n in names if "-grid-" in n]
     duration = 20.0 if args.quick else args.duration
-    results: dict = {
-        "cooploc_version": __version__,
-        "python": sys.version.split()[0],
-        "numpy": np.__version__,
-        "sumo": sumo_package.__version__,
-        "machine": platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "presets": {},
-    }
+    results: dict = {**environment(), "sumo": sumo_package.__version__, "presets": {}}
     with tempfile.TemporaryDirectory(prefix="cooploc-bench-") as cache:
         os.environ["COOPLOC_CACHE_DIR"] = cache
         for name in names:
@@ -111,9 +99,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{entry['vehicles_mean_present']:5.1f} vehicles, "
                   f"{entry['features_mean_present']:5.1f} features present, "
                   f"peak {entry['build_peak_memory_bytes'] / 1e6:.1f} MB")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=2) + "\n")
-    print(f"written {args.out}")
+    write_json(results, args.out)
     return 0
 
 
