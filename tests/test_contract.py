@@ -11,7 +11,8 @@ is covered without touching this file. Each runs on a short recording of its own
 - give identical numbers for the same seed;
 - follow vehicles that enter and leave (traffic);
 - survive missed detections and clutter;
-- stay finite with bounded covariance over a long run;
+- stay finite with bounded covariance over a long run (2000 steps of a small version of
+  the default preset, particle counts capped);
 - never see truth unless it is a known-association reference (`needs_truth`), which
   receives an `AssociationTruth` (association only, no states);
 - follow real traffic: a tiny SUMO run (`cooploc.scenarios.sumo.TINY_GRID`) where
@@ -173,23 +174,46 @@ def test_missed_detections_and_clutter(name: str, seed: int) -> None:
     assert_run_valid(run_estimator(name, rec), rec)
 
 
+#: long runs check stability, not accuracy: fewer particles make degeneracy likelier
+LONG_RUN_PARTICLES = 300
+
+
+def long_run(name: str, seed: int, n_steps: int) -> tuple[Recording, Params]:
+    """A long, small run of the default preset: two estimated vehicles (anchors on top of
+    them where the preset has anchors), one feature and poor GNSS where the preset has
+    those parameters; particle estimators capped at `LONG_RUN_PARTICLES`."""
+    cls = get_estimator(name)
+    preset = get_preset(cls.default_preset)
+    keys = set(preset.params.keys())
+    if "n_steps" not in keys:
+        pytest.skip(f"preset {preset.name!r} has no parameter 'n_steps'")
+    wanted = {"n_steps": n_steps, "n_vehicles": 2 + int(getattr(preset.params, "n_anchors", 0)),
+              "n_features": 1, "gnss_variances": (15.0,)}
+    rec = _recording(preset.name, seed, tuple(sorted((k, v) for k, v in wanted.items() if k in keys)))
+    params = cls.Params()
+    if "n_particles" in params.keys():
+        params = params.with_overrides(
+            {"n_particles": min(params.n_particles, LONG_RUN_PARTICLES)})  # type: ignore[attr-defined]
+    return rec, params
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", NAMES)
 def test_long_run_stays_finite_and_bounded(name: str, seed: int) -> None:
-    rec = contract_recording(name, seed, n_steps=2000, n_vehicles=1, n_features=1,
-                             gnss_variances=(15.0,))
-    estimates = run_estimator(name, rec)
+    rec, params = long_run(name, seed, n_steps=2000)
+    estimates = run_estimator(name, rec, params=params)
     assert_run_valid(estimates, rec)
 
-    def largest_variance(part: str, steps: range) -> float:
+    def largest_variance(part: str, steps: range) -> float | None:
         sets = [getattr(estimates[k], part) for k in steps]
-        return max(np.linalg.eigvalsh(s.cov).max() for s in sets if s is not None and len(s))
+        return max((np.linalg.eigvalsh(s.cov).max() for s in sets if s is not None and len(s)),
+                   default=None)
 
     for part in ("vehicles", "features"):
-        if getattr(estimates[-1], part) is None:
-            continue
         early = largest_variance(part, range(100, 1000))
         late = largest_variance(part, range(1000, 2000))
+        if early is None or late is None:
+            continue  # e.g. per-step feature estimates once the vehicles have passed them
         # no drift: the second half is no less certain than the first (factor 2 leaves
         # room for sampling-based covariances), and nothing runs away
         assert late <= 2.0 * early, (part, early, late)
