@@ -26,6 +26,7 @@ from cooploc.particles import (
     propagate_linear,
     resample,
     sample_gaussians,
+    shrinkage_move,
     systematic_resample,
     weighted_moments,
 )
@@ -119,6 +120,23 @@ def test_resample_gives_equal_weights_and_keeps_the_rest(rng: np.random.Generato
     np.testing.assert_allclose(out.log_weights[0], -np.log(50))
     np.testing.assert_array_equal(out.samples[1], p.samples[1])
     np.testing.assert_array_equal(out.log_weights[1], p.log_weights[1])
+
+
+def test_shrinkage_move_keeps_moments_and_restores_diversity(rng: np.random.Generator) -> None:
+    # a collapsed belief: 20 000 copies of 4 distinct states (velocity-like spread)
+    base = rng.normal(size=(4, 3)) * np.array([1.0, 2.0, 0.5])
+    copies = base[rng.integers(0, 4, 20_000)]
+    p = Particles(np.stack([copies, copies]), np.full((2, 20_000), -np.log(20_000)))
+    out = shrinkage_move(p, rng, which=np.array([True, False]))
+    assert np.unique(out.samples[0], axis=0).shape[0] == 20_000      # diversity back
+    np.testing.assert_array_equal(out.samples[1], p.samples[1])       # not selected
+    np.testing.assert_array_equal(out.log_weights, p.log_weights)
+    mean, cov = weighted_moments(Particles(p.samples[:1], p.log_weights[:1]))
+    new_mean, new_cov = weighted_moments(Particles(out.samples[:1], out.log_weights[:1]))
+    # the move keeps mean and covariance in expectation (Monte Carlo tolerance)
+    scale = np.sqrt(np.diag(cov[0]))
+    np.testing.assert_allclose(new_mean[0], mean[0], atol=0.05 * scale.max())
+    np.testing.assert_allclose(new_cov[0], cov[0], atol=0.05 * np.outer(scale, scale).max())
 
 
 def test_normalize_and_ess() -> None:

@@ -174,6 +174,35 @@ def resample(particles: Particles, rng: np.random.Generator, which: npt.ArrayLik
     return Particles(samples, lw)
 
 
+def shrinkage_move(particles: Particles, rng: np.random.Generator, which: npt.ArrayLike | None = None
+                   ) -> Particles:
+    """Liu–West kernel move of resampled beliefs: x ← a x + (1 − a) x̄ + N(0, h² Σ).
+
+    After resampling, a belief that collapsed onto a few particles keeps only copies of
+    them, and the copies spread again only through process noise — slowly in the
+    components that no measurement informs (e.g. velocity). Sampling from a Gaussian
+    kernel density of the particles restores diversity; shrinking towards the mean with
+    a = √(1 − h²) makes the new particles keep the weighted mean x̄ and covariance Σ of
+    the old ones exactly, so the move adds no spread (Liu & West 2001, "Combined
+    parameter and state estimation in simulation-based filtering", §3.3). h is
+    Silverman's bandwidth for N particles in d dimensions, (4 / (N (d + 2)))^(1/(d+4)).
+    `which` (mask; default all) selects the beliefs to move.
+    """
+    which = np.ones(len(particles), bool) if which is None else np.asarray(which, bool)
+    if not which.any():
+        return particles
+    n, d = particles.n_particles, particles.samples.shape[2]
+    h2 = (4.0 / (n * (d + 2))) ** (2.0 / (d + 4))
+    a = np.sqrt(1.0 - h2)
+    selected = Particles(particles.samples[which], particles.log_weights[which])
+    mean, cov = weighted_moments(selected)
+    noise = np.einsum("bde,ble->bld", np.linalg.cholesky(h2 * cov),
+                      rng.standard_normal(selected.samples.shape))
+    samples = particles.samples.copy()
+    samples[which] = a * selected.samples + (1.0 - a) * mean[:, None, :] + noise
+    return Particles(samples, particles.log_weights)
+
+
 def weighted_moments(particles: Particles, min_variance: float = 1e-12) -> tuple[FloatArray, FloatArray]:
     """Weighted mean (n, d) and covariance (n, d, d) of each belief.
 

@@ -30,14 +30,15 @@ Complexity O(S K M N_p² (1 + I)) kernel work, done as one numba pass that fills
 (S K M N_p² doubles; with more than `kernel_memory_mb` the kernel is recomputed per
 use instead of stored), plus O(S K M P) for the association.
 
-Measured (`python benchmarks/rsu_bp.py`, froehle2018, quiet 2-core machine): N_p = 600,
-10 runs × 501 steps — 28 steps/s, vehicle-2 RMSE 0.87 m against 0.71 m for `oracle-kf`
-(1.23 ×, bootstrap 90 % interval 1.18–1.27 over runs) and 2.52 m for `gnss-kf`;
-N_p = 2000 (1 run, 201 steps) — 2.6 steps/s, 1.22 × the bound. A single run's RMSE
-is a time average of strongly correlated errors, so a ratio from two runs can land
-anywhere in 1.1–1.4. The gap to the bound is BP's: beliefs are products of
-marginals, so the vehicle–feature correlation that the joint Kalman filter keeps is
-dropped every step (the paper's §V-B remark), plus particle noise that shrinks with N_p.
+Measured (`python benchmarks/rsu_bp.py`, froehle2018, 2-core machine): N_p = 600,
+10 runs × 501 steps — 29 steps/s, vehicle-2 RMSE 0.84 m against 0.71 m for `oracle-kf`
+(1.20 ×, bootstrap 90 % interval 1.17–1.23 over runs; 1.23 × without the shrinkage
+move below) and 2.52 m for `gnss-kf`; N_p = 2000 (1 run, 201 steps) — 2.8 steps/s,
+1.22 × the bound. A single run's RMSE is a time average of strongly correlated errors,
+so a ratio from two runs can land anywhere in 1.1–1.4. The gap to the bound is BP's:
+beliefs are products of marginals, so the vehicle–feature correlation that the joint
+Kalman filter keeps is dropped every step (the paper's §V-B remark), plus particle
+noise that shrinks with N_p.
 
 Choices the paper leaves open (DESIGN note):
 - Vehicle births: the prior of `Setup.vehicle_prior` (or a broad belief at the first
@@ -57,6 +58,14 @@ Choices the paper leaves open (DESIGN note):
   meaningful up to this relabelling.
 - β, γ, μ use normalised messages, so the (1 − P_D) term weighs against a likelihood
   averaged over a probability distribution; the paper's P_D = 1 case has (1 − P_D) = 0.
+- After resampling, every resampled belief takes a Liu–West shrinkage move
+  (`particles.shrinkage_move`; same mean and covariance, fresh particles;
+  `shrinkage_move=false` turns it off). Without it, a vehicle whose 10 m birth prior
+  collapses onto the few particles that fit the first V2F update keeps only their
+  velocities, and process noise restores the spread so slowly that a wrong velocity
+  can drive the position 8 m off for 20 steps (seen in `froehle2018` runs). The paper
+  only says it resamples; kernel smoothing of the particles is the usual companion in
+  nonparametric BP.
 - A message that vanishes at every particle (e.g. all kernel values underflow) is
   replaced by a constant (no information) rather than producing NaN.
 - V2F rows of sensors that are not present, GNSS rows of unknown vehicles, and
@@ -85,6 +94,7 @@ from cooploc.particles import (
     propagate_linear,
     resample,
     sample_gaussians,
+    shrinkage_move,
     systematic_resample,
     weighted_moments,
 )
@@ -108,6 +118,8 @@ class RsuBPParams(Params):
     resample_threshold : resample a belief when N_eff < threshold · N_p (1: every step).
     association_threshold : a V2F row is attributed to its MAP feature only if that
         feature's marginal probability is at least this (else -1) in `v2f_association`.
+    shrinkage_move : after resampling, move the particles by a Liu–West kernel step
+        (`particles.shrinkage_move`: same mean and covariance, fresh diversity).
     kernel_memory_mb : store the pair kernel of a step if it fits in this many MB,
         else recompute it for each use.
     feature_init : "measurements" — draw the feature particles around the first V2F
@@ -119,6 +131,7 @@ class RsuBPParams(Params):
     n_correction_iterations: int = 1
     resample_threshold: float = 1.0
     association_threshold: float = 0.5
+    shrinkage_move: bool = True
     kernel_memory_mb: float = 512.0
     feature_init: str = "measurements"
 
@@ -480,6 +493,9 @@ class RsuBP:
             belief = getattr(self, part)
             if belief is None or not len(belief):
                 continue
-            which = None if share >= 1.0 else (
+            which = np.ones(len(belief), bool) if share >= 1.0 else (
                 effective_sample_size(belief.log_weights) < share * belief.n_particles)
-            setattr(self, part, resample(belief, self.rng, which))
+            belief = resample(belief, self.rng, which)
+            if self.params.shrinkage_move:
+                belief = shrinkage_move(belief, self.rng, which)
+            setattr(self, part, belief)
