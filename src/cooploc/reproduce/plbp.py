@@ -45,7 +45,7 @@ from cooploc.scenarios.aoa_grid import AoaGridParams, anchor_ids
 from cooploc.types import Recording
 
 __all__ = ["BP_ITERATIONS", "CDF_ITERATIONS", "EXPERIMENT", "FOV_SWEEP", "J_MAX", "SWEEPS",
-           "iteration_study", "map_estimate"]
+           "iteration_study", "map_estimate", "within_target"]
 
 ESTIMATORS = ("plbp", "prior-lbp")
 J_MAX = 10
@@ -61,6 +61,11 @@ SWEEPS: dict[str, tuple[str, tuple[float, ...]]] = {
 FOV_SWEEP: tuple[float, ...] = (np.pi / 4, np.pi / 3, 5 * np.pi / 12, np.pi / 2)
 DEFAULT_RUNS, DEFAULT_SWEEP_RUNS, DEFAULT_MAP_RUNS = 100, 40, 30
 TARGET_FRACTION, TARGET_POSITION, TARGET_HEADING = 0.95, 4.0, 0.15
+
+
+def within_target(pos: np.ndarray, heading: np.ndarray) -> float:
+    """Share of vehicles within 4 m and 0.15 rad (position and absolute heading errors)."""
+    return float(np.mean((pos <= TARGET_POSITION) & (heading <= TARGET_HEADING)))
 
 
 # ----------------------------------------------------------------------------
@@ -217,8 +222,7 @@ def _sweep_curves(base: ExperimentConfig, key: str, values: Sequence[float], pro
             pos, head = table.err_pos[rows], table.err_heading[rows]
             curves[name]["pos"].append(rmse(pos))
             curves[name]["heading"].append(rmse(head))
-            curves[name]["within"].append(
-                float(np.mean((pos <= TARGET_POSITION) & (np.abs(head) <= TARGET_HEADING))))
+            curves[name]["within"].append(within_target(pos, head))
     return curves
 
 
@@ -352,17 +356,16 @@ def run(options: ReproduceOptions) -> Path:
     for name, J in [("plbp", j) for j in CDF_ITERATIONS] + [("prior-lbp", 5)]:
         pos, head = errors[f"{name}/L3/pos"][J], errors[f"{name}/L3/heading"][J]
         within[f"{name}/J{J}"] = {
-            "both": float(np.mean((pos <= TARGET_POSITION) & (head <= TARGET_HEADING))),
+            "both": within_target(pos, head),
             "position": float(np.mean(pos <= TARGET_POSITION)),
             "heading": float(np.mean(head <= TARGET_HEADING)),
         }
     reference = {
         "snapshots": map_runs,
         "map": {"pos_rmse": rmse(map_pos), "heading_rmse": rmse(map_head),
-                "within_both": float(np.mean((map_pos <= TARGET_POSITION) & (map_head <= TARGET_HEADING)))},
+                "within_both": within_target(map_pos, map_head)},
         "plbp": {"pos_rmse": rmse(plbp_map_set[0]), "heading_rmse": rmse(plbp_map_set[1]),
-                 "within_both": float(np.mean((plbp_map_set[0] <= TARGET_POSITION)
-                                              & (plbp_map_set[1] <= TARGET_HEADING)))},
+                 "within_both": within_target(*plbp_map_set)},
         "aoa_rows_per_vehicle": float(np.mean(errors["rows_per_vehicle"])),
     }
 
