@@ -18,7 +18,10 @@ through ``tests/conftest.py``). Everything random takes a seed or a generator.
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -26,6 +29,18 @@ import numpy as np
 from cooploc.estimators import get_estimator, make_estimator
 from cooploc.scenarios import get_preset
 from cooploc.types import Batch, Estimate, Frame, Recording, StateSet
+
+#: the repository root (scripts in benchmarks/ and examples/ are not a package)
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def load_script(relative: str) -> ModuleType:
+    """Import a script of the repository (e.g. "benchmarks/icp.py") from its file."""
+    path = ROOT / relative
+    spec = importlib.util.spec_from_file_location(f"script_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 __all__ = [
     "SMALL_STEPS",

@@ -2,29 +2,20 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def _common():
-    spec = importlib.util.spec_from_file_location("bench_common", ROOT / "benchmarks" / "common.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from helpers import load_script
 
 
 def test_environment_has_the_documented_keys():
-    env = _common().environment()
+    env = load_script("benchmarks/common.py").environment()
     assert set(env) == {"cooploc_version", "python", "numpy", "numba", "platform", "machine",
                         "cpu_count", "load_average"}
     assert env["cpu_count"] > 0
 
 
 def test_time_estimator_on_a_tiny_recording():
-    common = _common()
+    common = load_script("benchmarks/common.py")
     rec = common.recording("froehle2018", 0, {"n_steps": 5})
     timing, estimates = common.time_steps("gnss-kf", rec, 2)
     assert timing["steps"] == len(estimates) == len(rec.frames)
@@ -34,7 +25,7 @@ def test_time_estimator_on_a_tiny_recording():
 
 def test_write_json_records_the_end_load_average(tmp_path):
     out = tmp_path / "sub" / "bench.json"
-    _common().write_json({"x": 1}, out)
+    load_script("benchmarks/common.py").write_json({"x": 1}, out)
     text = out.read_text()
     assert text.endswith("}\n")
     assert set(json.loads(text)) == {"x", "load_average_end"}

@@ -2,22 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-
-
-def _load(path: Path):
-    spec = importlib.util.spec_from_file_location(path.stem, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from helpers import load_script
 
 
 def test_quickstart_example(tmp_path):
-    rmse = _load(ROOT / "examples" / "froehle2018_quickstart.py").main(
+    rmse = load_script("examples/froehle2018_quickstart.py").main(
         ["--small", "--out", str(tmp_path)])
     assert rmse["oracle-kf"]["1"] < rmse["gnss-kf"]["1"]
     assert (tmp_path / "summary.json").is_file()
@@ -25,7 +16,7 @@ def test_quickstart_example(tmp_path):
 
 def test_benchmark_runner_writes_json(tmp_path):
     out = tmp_path / "bench.json"
-    assert _load(ROOT / "benchmarks" / "run.py").main(["--quick", "--out", str(out)]) == 0
+    assert load_script("benchmarks/run.py").main(["--quick", "--out", str(out)]) == 0
     data = json.loads(out.read_text())
     for name in ("gnss-kf", "oracle-kf"):
         entry = data["estimators"][name]

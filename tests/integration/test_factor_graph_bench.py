@@ -2,17 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from helpers import load_script
 
 
 def test_factor_graph_benchmark_writes_json(tmp_path: Path) -> None:
-    spec = importlib.util.spec_from_file_location("fg_bench", ROOT / "benchmarks" / "factor_graph.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("benchmarks/factor_graph.py")
     out = tmp_path / "fg.json"
     module.main(["--quick", "--out", str(out)])
     data = json.loads(out.read_text())

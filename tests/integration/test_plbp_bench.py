@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from helpers import load_script
 
 
 def test_plbp_benchmark_quick(tmp_path) -> None:
-    spec = importlib.util.spec_from_file_location("bench_plbp", ROOT / "benchmarks" / "plbp.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("benchmarks/plbp.py")
     out = tmp_path / "plbp.json"
     assert module.main(["--quick", "--out", str(out)]) == 0
     data = json.loads(out.read_text())

@@ -2,19 +2,16 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[2]
+from helpers import load_script
 
 
 def test_rsu_bp_benchmark_writes_json(tmp_path: Path) -> None:
-    spec = importlib.util.spec_from_file_location("bench_rsu_bp", ROOT / "benchmarks" / "rsu_bp.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("benchmarks/rsu_bp.py")
     out = tmp_path / "rsu_bp.json"
     assert module.main(["--quick", "--out", str(out)]) == 0
     data = json.loads(out.read_text())
@@ -28,9 +25,7 @@ def test_rsu_bp_benchmark_writes_json(tmp_path: Path) -> None:
 
 
 def test_rsu_bp_clutter_example() -> None:
-    spec = importlib.util.spec_from_file_location("ex_rsu_bp", ROOT / "examples" / "rsu_bp_clutter.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("examples/rsu_bp_clutter.py")
     rmse = module.main(["--small"])
     assert set(rmse) == {"gnss-kf", "rsu-bp"}
     assert all(np.isfinite(v).all() for v in rmse.values())

@@ -2,18 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from helpers import load_script
 
 
 def test_sumo_benchmark_writes_json(tmp_path, monkeypatch):
     monkeypatch.setenv("COOPLOC_CACHE_DIR", str(tmp_path / "cache"))
-    spec = importlib.util.spec_from_file_location("benchmark_sumo", ROOT / "benchmarks" / "sumo_traffic.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("benchmarks/sumo_traffic.py")
     out = tmp_path / "bench.json"
     assert module.main(["--quick", "--out", str(out)]) == 0
     data = json.loads(out.read_text())

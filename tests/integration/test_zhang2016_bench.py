@@ -2,17 +2,13 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from helpers import load_script
 
 
 def test_benchmark_writes_json(tmp_path):
-    spec = importlib.util.spec_from_file_location("zhang_bench", ROOT / "benchmarks" / "zhang2016.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = load_script("benchmarks/zhang2016.py")
     out = tmp_path / "bench.json"
     assert module.main(["--quick", "--out", str(out)]) == 0
     data = json.loads(out.read_text())
