@@ -15,8 +15,9 @@ import pytest
 from scipy.stats import norm
 
 from cooploc.errors import ConfigError, InvalidInputError
+from cooploc.geometry import wrap_angle
 from cooploc.io import load_recording, save_recording
-from cooploc.metrics import evaluate, wrap_angle
+from cooploc.metrics import evaluate
 from cooploc.scenarios import get_preset
 from cooploc.scenarios.aoa_grid import AoaGridParams, anchor_ids, generate
 from cooploc.sensors import AngleOfArrival, sensor_from_dict

@@ -15,9 +15,8 @@ from cooploc.experiment import (
     run_experiment,
     run_generators,
     run_sweep,
-    summarize,
-    write_results,
 )
+from cooploc.results import summarize, write_results
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -14,7 +14,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from cooploc.estimators import make_estimator
+from cooploc.estimators import get_estimator, make_estimator
 from cooploc.estimators.factor_graph import (
     NEW,
     OLD,
@@ -29,8 +29,8 @@ from cooploc.estimators.factor_graph import (
     squared_topology,
     topology_jacobians,
 )
+from cooploc.geometry import rotation, to_local
 from cooploc.scenarios import get_preset
-from cooploc.sensors import rotation, to_local
 from cooploc.types import Batch, Frame, Recording
 
 # central differences with step 1e-6 on values of O(100) m: truncation O(h²) and
@@ -230,7 +230,7 @@ def test_sparse_lm_equals_gtsam_lm(kind: str, seed: int) -> None:
     name = "fg-topology-old" if kind == OLD else "fg-topology-new"
     results = {}
     for solver in ("sparse", "gtsam"):
-        est = make_estimator(name, rec.setup, FactorGraphParams(solver=solver),
+        est = make_estimator(name, rec.setup, get_estimator(name).Params(solver=solver),
                              np.random.default_rng(0))
         for frame in rec.frames:
             est.step(frame)
@@ -280,7 +280,8 @@ def test_clutter_robust_option_bounds_wrong_topologies(seed: int) -> None:
                         clutter_rate=1.0, clutter_extent=60.0)
         truth = rec.truth.vehicle_states[:, :, :2]
         for huber in errors:
-            est = make_estimator("fg-topology-old", rec.setup, FactorGraphParams(huber=huber),
+            est = make_estimator("fg-topology-old", rec.setup,
+                                 get_estimator("fg-topology-old").Params(huber=huber),
                                  np.random.default_rng(0))
             for frame in rec.frames:
                 est.step(frame)
@@ -359,10 +360,9 @@ def test_robust_lm_equals_gtsam_huber(kind: str, seed: int) -> None:
     name = "fg-topology-old" if kind == OLD else "fg-topology-new"
     results = {}
     for solver in ("sparse", "gtsam"):
-        est = make_estimator(name, rec.setup, FactorGraphParams(solver=solver, huber=2.0,
-                                                                relative_tolerance=1e-10,
-                                                                absolute_tolerance=1e-10),
-                             np.random.default_rng(0))
+        params = get_estimator(name).Params(solver=solver, huber=2.0, relative_tolerance=1e-10,
+                                            absolute_tolerance=1e-10)
+        est = make_estimator(name, rec.setup, params, np.random.default_rng(0))
         for frame in rec.frames:
             est.step(frame)
         results[solver] = est.solve()

@@ -17,11 +17,11 @@ import pytest
 
 from cooploc.errors import ConfigError
 from cooploc.estimators import make_estimator
+from cooploc.geometry import to_local
 from cooploc.motion import ConstantVelocity
 from cooploc.reproduce import ReproduceOptions, get_experiment
 from cooploc.scenarios import get_preset
 from cooploc.scenarios.gulati import RADAR_ID, GulatiParams, generate
-from cooploc.sensors import to_local
 
 
 # sampling checks: variance estimated from m draws has relative standard error

@@ -19,8 +19,9 @@ from scipy import stats
 
 from cooploc.estimators import get_estimator, make_estimator
 from cooploc.estimators.icp import _group_births, relative_message
-from cooploc.experiment import ExperimentConfig, run_experiment, summarize
+from cooploc.experiment import ExperimentConfig, run_experiment
 from cooploc.gaussian import Gaussians, to_information
+from cooploc.results import summarize
 from cooploc.types import Frame, Recording
 from helpers import assert_valid_estimate, position_errors, preset_recording, run_estimator, with_traffic
 

@@ -6,11 +6,10 @@ import numpy as np
 import pytest
 
 from cooploc.estimators import make_estimator
-from cooploc.estimators.base import AssociationTruth
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
 from cooploc.estimators.kf_known_da import KFKnownDA, KFKnownDAParams
 from cooploc.scenarios import get_preset
-from cooploc.types import Batch, Frame
+from cooploc.types import AssociationTruth, Batch, Frame
 
 
 @pytest.mark.parametrize("overrides", [{}, {"detection_probability": 0.8, "clutter_rate": 2.0}])

@@ -6,6 +6,7 @@ import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
+from cooploc.geometry import wrap_angle
 from cooploc.metrics import (
     FEATURE,
     VEHICLE,
@@ -15,7 +16,6 @@ from cooploc.metrics import (
     nees,
     per_entity_rmse,
     rmse,
-    wrap_angle,
 )
 from cooploc.scenarios import get_preset
 from cooploc.types import Estimate, StateSet

@@ -19,8 +19,7 @@ from scipy.linalg import block_diag, solve
 
 from cooploc.errors import ConfigError
 from cooploc.estimators import get_estimator, make_estimator
-from cooploc.estimators.base import AssociationTruth
-from cooploc.types import Recording
+from cooploc.types import AssociationTruth, Recording
 from helpers import froehle_recording, position_errors, run_estimator, with_traffic
 
 # Dense conditioning of a ≤ 64-dimensional joint Gaussian vs a recursive Joseph-form

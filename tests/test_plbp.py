@@ -30,7 +30,7 @@ from cooploc.estimators.plbp import (
     link_factors,
 )
 from cooploc.gaussian import Gaussians
-from cooploc.metrics import wrap_angle
+from cooploc.geometry import wrap_angle
 from cooploc.motion import RandomWalk
 from cooploc.scenarios import get_preset
 from cooploc.scenarios.aoa_grid import LAYOUT, anchor_ids

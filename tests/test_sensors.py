@@ -15,16 +15,15 @@ import pytest
 from scipy.stats import multivariate_normal
 
 from cooploc.errors import InvalidInputError
+from cooploc.geometry import rotation, to_local
 from cooploc.sensors import (
     AnonymousPosition,
     GnssPosition,
     InfrastructureRadar,
     Odometry,
     RelativePosition,
-    rotation,
     selection_matrix,
     sensor_from_dict,
-    to_local,
 )
 from cooploc.types import Batch
 from helpers import assert_covariance_close

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from cooploc.errors import InvalidInputError
 from cooploc.gaussian import SIGMA_POINT_METHODS, sigma_points, statistical_linear_regression
-from cooploc.metrics import wrap_angle
+from cooploc.geometry import wrap_angle
 
 # Round-off of the sigma-point sums and one 6×6 solve on well-conditioned covariances.
 EXACT = 1e-9

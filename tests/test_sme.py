@@ -30,8 +30,8 @@ from cooploc.estimators.sme import (
     topology,
     topology_moments,
 )
+from cooploc.geometry import rotation
 from cooploc.scenarios import get_preset
-from cooploc.sensors import rotation
 from cooploc.types import Batch, Frame, Recording
 from helpers import assert_valid_estimate
 

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from cooploc.errors import ConfigError
-from cooploc.experiment import ExperimentConfig, run_experiment, summarize
+from cooploc.experiment import ExperimentConfig, run_experiment
+from cooploc.geometry import to_local
 from cooploc.metrics import evaluate, optimal_assignment, ospa, set_errors, total_rmse
 from cooploc.reproduce.zhang2016 import paired_difference, per_run_total
+from cooploc.results import summarize
 from cooploc.scenarios import get_preset
 from cooploc.scenarios.zhang2016 import INITIAL_STATES_PAPER, RADAR_ID, ZhangParams, initial_states
-from cooploc.sensors import to_local
 from cooploc.types import Estimate, StateSet
 
 NOISE_SIGMAS = 6.0  # bound of sample statistics in standard errors (false alarm ~1e-9)

@@ -49,10 +49,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import linear_sum_assignment
-from scipy.special import logsumexp
 
 from cooploc.errors import InvalidInputError
+from cooploc.particles import log_sum_exp
 from cooploc.types import FloatArray, IntArray
 
 __all__ = [
@@ -264,6 +263,8 @@ def decide(marginals: AssociationMarginals, threshold: float = 0.5,
         p_best = np.take_along_axis(P, best[:, :, None], axis=2)[:, :, 0]
         out = np.where((p_best > clutter) & (p_best >= threshold), best, -1).astype(np.int64)
     else:
+        from scipy.optimize import linear_sum_assignment
+
         out = np.full((B, M), -1, dtype=np.int64)
         with np.errstate(divide="ignore"):
             cost_f, cost_c = -np.log(P), -np.log(clutter)
@@ -310,7 +311,7 @@ def exact_marginals(log_psi: npt.ArrayLike, log_missed: npt.ArrayLike,
     used[h_idx, hyp[h_idx, f_idx]] = True
     with np.errstate(invalid="ignore"):
         log_w = term.sum(axis=1) + np.where(used, 0.0, log_clutter[None, :]).sum(axis=1)
-    log_w = log_w - logsumexp(log_w)
+    log_w = log_w - log_sum_exp(log_w, axis=None)
     w = np.exp(log_w)
     feature = np.zeros((K, M))
     for m in range(M):

@@ -110,7 +110,8 @@ def run(
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Run estimators on a scenario for N Monte Carlo runs and write a results folder."""
-    from cooploc.experiment import ExperimentConfig, run_experiment, write_results
+    from cooploc.experiment import ExperimentConfig, run_experiment
+    from cooploc.results import write_results
 
     if config is not None:
         if not config.is_file():

@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from scipy import sparse
 
 from cooploc.errors import InvalidInputError
 from cooploc.network import Network
@@ -90,6 +89,8 @@ class GroupConsensus:
         self.edges, self.blocks, self.slot = self.edges[order], self.blocks[order], self.slot[order]
         P = self.edges.size
         self._n_messages = int(np.unique(self.edges).size)
+        from scipy import sparse  # here, not at import: `cooploc list` must not load SciPy
+
         self._sum_into = sparse.csr_matrix((np.ones(P), (self.slot, np.arange(P))), shape=(n * G, P))
         self._weights: FloatArray | None = None
         self._leader: np.ndarray | None = None

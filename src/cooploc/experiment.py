@@ -14,55 +14,47 @@ numbers), so a curve's shape is not hidden under Monte Carlo noise.
 Timing: `steps_per_second` = steps processed / seconds spent inside `step`, summed
 over runs — single-process throughput, whatever the backend.
 
-Smoothers: an estimator with a `smooth() -> list[Estimate]` method (batch smoothers,
-DESIGN §4) is asked for it after its last `step`; the smoothed estimates (one per
-frame) replace the per-step ones in the scores, and the time of `smooth` counts as
-step time.
+`estimate(estimator, recording)` is the one way an estimator is run over a recording
+(by the runner, the paper experiments, the benchmarks and the tests): `step` on every
+frame, then, for an estimator with a `smooth() -> list[Estimate]` method (batch
+smoothers, DESIGN §4), the smoothed estimates (one per frame) in place of the per-step
+ones; the time of `smooth` counts as step time (`StepTimer`).
+
+The summary of results and the results folder are `cooploc.results`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 import zlib
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cooploc import __version__
+from cooploc._version import __version__
 from cooploc.errors import ConfigError
-from cooploc.estimators import get_estimator, make_estimator
-from cooploc.metrics import (
-    FEATURE,
-    KIND_NAMES,
-    VEHICLE,
-    ErrorTable,
-    evaluate,
-    ospa_per_step,
-    per_entity_rmse,
-    relabel,
-    rmse,
-    total_rmse,
-    track_identities,
-)
+from cooploc.metrics import ErrorTable, evaluate, ospa_per_step, score_association
 from cooploc.params import Params
-from cooploc.scenarios import get_preset
+from cooploc.registry import get_estimator, get_preset, make_estimator
+from cooploc.types import Estimate, Frame, Recording
 
 __all__ = [
     "BACKENDS",
     "EstimatorSpec",
     "ExperimentConfig",
     "ExperimentResult",
+    "RunResult",
+    "StepTimer",
+    "estimate",
     "run_experiment",
+    "run_generators",
+    "run_one",
     "run_sweep",
-    "summarize",
-    "write_results",
 ]
 
 BACKENDS: tuple[str, ...] = ("serial", "processes", "dask")
@@ -214,6 +206,45 @@ def run_generators(seed: int, run: int, names: Sequence[str]
     return np.random.default_rng(scenario_seq), estimator_rngs
 
 
+class StepTimer:
+    """Seconds spent inside an estimator's `step` (and `smooth`), summed over calls.
+
+    >>> timer = StepTimer()
+    >>> estimates = estimate(est, recording, timer=timer)     # doctest: +SKIP
+    >>> timer.seconds / timer.steps                           # doctest: +SKIP
+    """
+
+    def __init__(self) -> None:
+        self.seconds = 0.0
+        self.steps = 0
+
+
+def estimate(estimator: Any, recording: Recording | Sequence[Frame], *, smooth: bool = True,
+             timer: StepTimer | None = None) -> list[Estimate]:
+    """Step `estimator` through every frame; the smoothed estimates if it can smooth.
+
+    `recording` is a `Recording` or its frames. `smooth=False` keeps the per-step
+    (filtered) estimates of a batch smoother. With a `timer`, the seconds spent inside
+    `step` and `smooth` (nothing else) are added to it, and the frames to its steps.
+    """
+    frames = recording.frames if isinstance(recording, Recording) else recording
+    clock = time.perf_counter
+    estimates, spent = [], 0.0
+    for frame in frames:
+        start = clock()
+        estimates.append(estimator.step(frame))
+        spent += clock() - start
+    smoother = getattr(estimator, "smooth", None)
+    if smooth and callable(smoother):  # batch smoother: its estimates replace the per-step ones
+        start = clock()
+        estimates = list(smoother())
+        spent += clock() - start
+    if timer is not None:
+        timer.seconds += spent
+        timer.steps += len(frames)
+    return estimates
+
+
 def run_one(config: ExperimentConfig, run: int) -> RunResult:
     """Simulate run `run` and process it with every estimator of the config."""
     preset = get_preset(config.scenario)
@@ -224,47 +255,15 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
     for spec in config.estimators:
         estimator = make_estimator(spec.name, recording.setup, spec.params,
                                    estimator_rngs[spec.name], recording.truth)
-        estimates, spent = [], 0.0
-        correct = total = dropped = rows = 0
-        tracks, track_origins = [], []
-        for frame in recording.frames:
-            start = time.perf_counter()
-            estimate = estimator.step(frame)
-            spent += time.perf_counter() - start
-            estimates.append(estimate)
-            true = recording.truth.origin[frame.k].get("v2f", np.zeros(0, np.int64))
-            decided = estimate.info.get("v2f_association")
-            if decided is not None and "v2f_track" not in estimate.info:
-                # decided origin per V2F row, for association accuracy (self-named tracks below)
-                correct += int(np.sum(np.asarray(decided) == true))
-                total += int(true.size)
-            track = estimate.info.get("v2f_track")
-            if track is not None:    # the estimator's own track id per V2F row (−1: none)
-                tracks.append(np.asarray(track))
-                track_origins.append(true)
-                dropped += int(estimate.info.get("v2f_discarded", 0))
-                rows += int(true.size)
-        smooth = getattr(estimator, "smooth", None)
-        if callable(smooth):  # batch smoother: score the smoothed estimates (module doc)
-            start = time.perf_counter()
-            estimates = list(smooth())
-            spent += time.perf_counter() - start
-        if tracks:
-            # score self-named feature tracks as the true feature most of their rows came from
-            identity = track_identities(tracks, track_origins)
-            for track, true in zip(tracks, track_origins, strict=True):
-                paired = track >= 0
-                named = np.array([identity.get(int(t), -2) for t in track[paired]], dtype=np.int64)
-                correct += int(np.sum(named == true[paired]))
-                total += int(paired.sum())
-            estimates = [dataclasses.replace(e, features=relabel(e.features, identity))
-                         if e.features is not None else e for e in estimates]
-            discarded[spec.name] = (dropped, rows)
+        timer = StepTimer()
+        estimates, score = score_association(recording, estimate(estimator, recording, timer=timer))
+        if score is not None and score.total:
+            association[spec.name] = (score.correct, score.total)
+        if score is not None and score.discarded is not None:
+            discarded[spec.name] = (score.discarded, score.rows)
         errors[spec.name] = evaluate(recording, estimates)
         ospa[spec.name] = ospa_per_step(recording, estimates)
-        seconds[spec.name], steps[spec.name] = spent, len(recording.frames)
-        if total:
-            association[spec.name] = (correct, total)
+        seconds[spec.name], steps[spec.name] = timer.seconds, timer.steps
     return RunResult(run, errors, seconds, steps, association, discarded, ospa)
 
 
@@ -410,113 +409,3 @@ def run_sweep(
         out.append((value, ExperimentResult(cfg, tuple(results[i:i + cfg.runs]))))
         i += cfg.runs
     return out
-
-
-# ----------------------------------------------------------------------------
-# summary and results folder
-# ----------------------------------------------------------------------------
-
-
-def _finite_or_none(value: float) -> float | None:
-    return None if value is None or not np.isfinite(value) else float(value)
-
-
-def summarize(result: ExperimentResult) -> dict[str, Any]:
-    """The `summary.json` contract of DESIGN §6."""
-    config = result.config
-    out: dict[str, Any] = {
-        "cooploc_version": __version__,
-        "scenario": config.scenario,
-        "params": config.scenario_params.to_dict(),
-        "runs": config.runs,
-        "seed": config.seed,
-        "estimators": {},
-    }
-    for spec in config.estimators:
-        run, table = result.errors(spec.name)
-        vehicles = table.kind == VEHICLE
-        features = table.kind == FEATURE
-        per_run: dict[str, list[float | None]] = {}
-        vehicle_ids = np.unique(table.id[vehicles])
-        for vid in vehicle_ids:
-            rows = vehicles & (table.id == vid)
-            per_run[str(int(vid))] = [
-                _finite_or_none(rmse(table.err_pos[rows & (run == r.run)])) for r in result.runs
-            ]
-        seconds = sum(r.step_seconds[spec.name] for r in result.runs)
-        steps = sum(r.n_steps[spec.name] for r in result.runs)
-        assoc = [r.association[spec.name] for r in result.runs if spec.name in r.association]
-        dropped = [r.discarded[spec.name] for r in result.runs if spec.name in r.discarded]
-        heading = table.err_heading[vehicles]
-        ospa_steps = [r.ospa[spec.name] for r in result.runs if spec.name in r.ospa]
-        out["estimators"][spec.name] = {
-            "params": spec.params.to_dict(),
-            "vehicle_rmse": {str(k): v for k, v in
-                             per_entity_rmse(table.id[vehicles], table.err_pos[vehicles]).items()},
-            "vehicle_rmse_all": _finite_or_none(rmse(table.err_pos[vehicles])),
-            "per_run_vehicle_rmse": per_run,
-            "feature_rmse_all": _finite_or_none(rmse(table.err_pos[features])),
-            "heading_rmse_all": _finite_or_none(rmse(heading)) if np.isfinite(heading).any()
-            else None,
-            "association_accuracy": (sum(c for c, _ in assoc) / sum(t for _, t in assoc))
-            if assoc else None,
-            "discarded_share": (sum(d for d, _ in dropped) / sum(t for _, t in dropped))
-            if dropped and sum(t for _, t in dropped) else None,
-            "steps_per_second": steps / seconds if seconds > 0 else None,
-            # added for Zhang 2016 (DESIGN §6 allows new keys): eq. (20) and OSPA (m)
-            "total_rmse": _finite_or_none(total_rmse(table.step[vehicles], table.err_pos[vehicles],
-                                                     run[vehicles])),
-            "ospa": _finite_or_none(float(np.mean(np.concatenate(ospa_steps))))
-            if ospa_steps else None,
-        }
-    return out
-
-
-def _toml_ready(value: Any) -> Any:
-    """TOML has no null: drop None entries (absent key = default) recursively."""
-    if isinstance(value, Mapping):
-        return {k: _toml_ready(v) for k, v in value.items() if v is not None}
-    if isinstance(value, (list, tuple)):
-        return [_toml_ready(v) for v in value]
-    return value
-
-
-def errors_frame(result: ExperimentResult):  # -> pyarrow.Table
-    """The long error table of every estimator (DESIGN §6 `errors.parquet` columns)."""
-    import pyarrow as pa
-
-    parts = []
-    for spec in result.config.estimators:
-        run, table = result.errors(spec.name)
-        kind_names = np.array([KIND_NAMES[VEHICLE], KIND_NAMES[FEATURE]])
-        parts.append(pa.table({
-            "run": pa.array(run, pa.int64()),
-            "step": pa.array(table.step, pa.int64()),
-            "t": pa.array(table.t, pa.float64()),
-            "estimator": pa.array([spec.name] * len(table), pa.string()),
-            "kind": pa.array(kind_names[table.kind] if len(table) else [], pa.string()),
-            "id": pa.array(table.id, pa.int64()),
-            "err_pos": pa.array(table.err_pos, pa.float64()),
-            "err_vel": pa.array(table.err_vel, pa.float64(), from_pandas=True),
-            "err_heading": pa.array(table.err_heading, pa.float64(), from_pandas=True),
-        }))
-    return pa.concat_tables(parts)
-
-
-def write_results(result: ExperimentResult, out: str | os.PathLike[str]) -> Path:
-    """Write summary.json, errors.parquet, config.toml, figures and report.md to `out`."""
-    import pyarrow.parquet as pq
-    import tomli_w
-
-    from cooploc import plots
-
-    folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
-    summary = summarize(result)
-    (folder / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    pq.write_table(errors_frame(result), folder / "errors.parquet")
-    (folder / "config.toml").write_text(tomli_w.dumps(_toml_ready(result.config.to_dict())))
-    figures = plots.run_figures(result, summary, folder)
-    (folder / "report.md").write_text(plots.run_report(summary, figures))
-    return folder
-

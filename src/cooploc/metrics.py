@@ -12,6 +12,9 @@
   (ids of their own) are scored by giving each track the true feature most of its
   rows came from over the run; association accuracy is then the share of paired rows
   whose origin is their track's feature.
+- `score_association`: both of the above over a run, from the `Estimate.info` keys
+  that `cooploc.types.Estimate` defines (``v2f_association``, ``v2f_track``,
+  ``v2f_discarded``).
 - `nees`: normalised estimation error squared (x − x̂)ᵀ P⁻¹ (x − x̂), for consistency
   checks against χ² bounds.
 
@@ -31,12 +34,14 @@ the squared position error).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 
+from cooploc.geometry import wrap_angle
 from cooploc.types import (
     Estimate,
     FloatArray,
@@ -52,6 +57,7 @@ __all__ = [
     "OSPA_CUTOFF",
     "OSPA_ORDER",
     "VEHICLE",
+    "AssociationScore",
     "ErrorTable",
     "association_accuracy",
     "ecdf",
@@ -63,21 +69,16 @@ __all__ = [
     "per_entity_rmse",
     "relabel",
     "rmse",
+    "score_association",
     "set_errors",
     "total_rmse",
     "track_identities",
-    "wrap_angle",
 ]
 
 VEHICLE, FEATURE = 0, 1
 OSPA_CUTOFF = 10.0  # m: a vehicle missed or placed 10 m off costs the same
 OSPA_ORDER = 2.0
 KIND_NAMES = {VEHICLE: "vehicle", FEATURE: "feature"}
-
-
-def wrap_angle(angle: npt.ArrayLike) -> FloatArray:
-    """Angles wrapped to [−π, π)."""
-    return (np.asarray(angle, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def rmse(errors: npt.ArrayLike) -> float:
@@ -136,6 +137,54 @@ def relabel(states: StateSet, identity: Mapping[int, int]) -> StateSet:
     _, first = np.unique(new[keep], return_index=True)
     rows = np.flatnonzero(keep)[np.sort(first)]
     return StateSet(new[rows], states.mean[rows], states.cov[rows])
+
+
+@dataclass(frozen=True)
+class AssociationScore:
+    """V2F association of one run: `correct` of `total` rows went to their true origin;
+    `discarded` of `rows` were left unused (None for estimators that name no tracks)."""
+
+    correct: int
+    total: int
+    discarded: int | None = None
+    rows: int | None = None
+
+
+def score_association(recording: Recording, estimates: Sequence[Estimate]
+                      ) -> tuple[list[Estimate], AssociationScore | None]:
+    """Association accuracy of a run, and the estimates with self-named feature tracks
+    renamed to the true feature they stand for (`track_identities`, `relabel`).
+
+    Rows decided by feature id (``info["v2f_association"]``) count as correct when the
+    id is their true origin; rows given to an estimator's own track
+    (``info["v2f_track"]``) when the track stands for their true origin. None when no
+    estimate reports either key.
+    """
+    correct = total = dropped = rows = 0
+    tracks, track_origins = [], []
+    for k, estimate in enumerate(estimates):
+        true = recording.truth.origin[k].get("v2f", np.zeros(0, np.int64))
+        decided = estimate.info.get("v2f_association")
+        if decided is not None and "v2f_track" not in estimate.info:
+            correct += int(np.sum(np.asarray(decided) == true))
+            total += int(true.size)
+        track = estimate.info.get("v2f_track")
+        if track is not None:
+            tracks.append(np.asarray(track))
+            track_origins.append(true)
+            dropped += int(estimate.info.get("v2f_discarded", 0))
+            rows += int(true.size)
+    if not tracks:
+        return list(estimates), (AssociationScore(correct, total) if total else None)
+    identity = track_identities(tracks, track_origins)
+    for track, true in zip(tracks, track_origins, strict=True):
+        paired = track >= 0
+        named = np.array([identity.get(int(t), -2) for t in track[paired]], dtype=np.int64)
+        correct += int(np.sum(named == true[paired]))
+        total += int(paired.sum())
+    renamed = [dataclasses.replace(e, features=relabel(e.features, identity))
+               if e.features is not None else e for e in estimates]
+    return renamed, AssociationScore(correct, total, dropped, rows)
 
 
 def nees(estimate: StateSet, true_states: FloatArray) -> FloatArray:

@@ -33,48 +33,25 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import Any, ClassVar
 
 import numpy as np
 
 from cooploc.errors import InvalidInputError
-from cooploc.types import FloatArray
+from cooploc.geometry import rotation
+from cooploc.types import FloatArray, MotionModel
 
 __all__ = [
     "CVAccelerationInput",
     "CVVelocityNoise",
     "ConstantTurn",
     "ConstantVelocity",
-    "MotionModel",
     "RandomWalk",
     "motion_from_dict",
     "sample_gaussian",
     "simulate",
     "simulate_backward",
 ]
-
-
-@runtime_checkable
-class MotionModel(Protocol):
-    """A linear-Gaussian motion model x_k = F x_{k-1} + B u_k + w_k."""
-
-    name: ClassVar[str]
-    dim: int
-    state_dependent_noise: ClassVar[bool]
-
-    def transition_matrix(self, dt: float) -> FloatArray:
-        """F (dx, dx)."""
-        ...
-
-    def noise_covariance(self, dt: float, states: FloatArray | None = None) -> FloatArray:
-        """Q, (dx, dx) or per entity (n, dx, dx) where it depends on the state."""
-        ...
-
-    def control_matrix(self, dt: float) -> FloatArray | None:
-        """B (dx, du), or None for a model without input."""
-        ...
-
-    def to_dict(self) -> dict[str, Any]: ...
 
 
 def _cv_blocks(dt: float) -> tuple[FloatArray, FloatArray]:
@@ -245,9 +222,7 @@ def _turned_noise(G: FloatArray, sigma_along: float, sigma_cross: float,
                   states: FloatArray | None) -> FloatArray:
     """G R(ψ) diag(σ∥², σ⊥²) R(ψ)ᵀ Gᵀ per state, ψ = atan2(v_y, v_x) (ψ = 0 when at rest)."""
     states = np.zeros((1, 4)) if states is None else np.atleast_2d(states)
-    psi = np.arctan2(states[:, 3], states[:, 2])
-    c, s = np.cos(psi), np.sin(psi)
-    rot = np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)       # (n, 2, 2)
+    rot = rotation(np.arctan2(states[:, 3], states[:, 2]))                  # (n, 2, 2)
     noise = rot @ np.diag([sigma_along**2, sigma_cross**2]) @ rot.transpose(0, 2, 1)
     Q = G @ noise @ G.T
     return 0.5 * (Q + Q.transpose(0, 2, 1))

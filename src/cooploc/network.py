@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
-from scipy import sparse
 
 from cooploc.errors import InvalidInputError
 from cooploc.types import IntArray
@@ -104,6 +103,8 @@ class Network:
 
     def components(self) -> IntArray:
         """(n,) label of the connected component of each agent (for tests and reports)."""
+        from scipy import sparse
+
         graph = sparse.coo_matrix(
             (np.ones(self.n_edges), (self.target, self.source)), shape=(self.n_agents, self.n_agents)
         )

@@ -6,12 +6,15 @@ A belief is a weighted sample (Arulampalam et al. 2002, eq. (4); Fröhle 2018 eq
 
 held as `Particles(samples (n, N_p, d), log_weights (n, N_p))`: a batch of n beliefs
 (vehicles, features), weights in the log domain and normalised with `log_sum_exp`.
+This module is the one home of the particle toolkit of every estimator (`rsu-bp`,
+`icp-da-pf`, `sme-pf`):
 
+- `log_sum_exp` — log Σ exp(x), stable, without SciPy's per-call overhead;
 - `systematic_resample` — one uniform draw per belief, N_p evenly spaced points on the
-  weight CDF (Arulampalam et al. 2002, Alg. 2); O(n N_p) with `searchsorted`.
-- `effective_sample_size` — N_eff = 1 / Σ_l w_l² (degeneracy diagnostic).
-- `weighted_moments` — mean and covariance of each belief (symmetrised, floored).
-- `pair_kernel` / `pair_kernel_sum` — the hot loop of nonparametric BP with relative
+  weight CDF (Arulampalam et al. 2002, Alg. 2); O(n N_p) with `searchsorted`;
+- `effective_sample_size` — N_eff = (Σ_l w_l)² / Σ_l w_l² (degeneracy diagnostic);
+- `weighted_moments` — mean and covariance of each belief (symmetrised, floored);
+- `pair_kernel` / `pair_kernel_log_sum` — the hot loop of nonparametric BP with relative
   measurements (Fröhle eqs. (14), (21), (23)): for every block b (a sensor–feature–
   measurement triple) and every pair of particles (j, l)
 
@@ -24,12 +27,10 @@ held as `Particles(samples (n, N_p, d), log_weights (n, N_p))`: a batch of n bel
   `pair_kernel_log_sum` returns log Σ_l w_{b,l} G[b, j, l] (B, N_j) in float64 without
   storing G (for when the pairs do not fit in memory). Both whiten with the Cholesky
   factor W = L Lᵀ (u = L⁻¹(z − a), v = L⁻¹ c, so the exponent is −½‖u + v‖²) and run a
-  numba `prange` loop over (b, j) whose inner loops over l are contiguous. Measured on
-  the 2-core machine by `benchmarks/rsu_bp.py` (one run, 18 blocks of 600 × 600
-  pairs, load average ≈ 2): float32 stored kernel 270 million pair evaluations per
-  second, fused float64 sum 160 million, plain NumPy broadcast (float64, temporaries
-  of size B N_j N_l d) 65 million; under heavy load (≈ 14) 68 / 34 / 11 million. See
-  `benchmarks/rsu_bp.py`, which measures all three in one run.
+  numba `prange` loop over (b, j) whose inner loops over l are contiguous
+  (`cooploc._particle_kernels`, compiled on first use). `pair_kernel_numpy` is the
+  plain float64 broadcast they are checked and timed against: `benchmarks/rsu_bp.py`
+  measures all three in one run (pair evaluations per second).
 
 Complexity: O(B N_j N_l d) for the kernel; O(n N_p) for everything else.
 """
@@ -38,7 +39,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -109,18 +109,22 @@ class Particles:
         return cls(samples, np.full((n, N), -np.log(N)) if N else np.zeros((n, 0)))
 
 
-def log_sum_exp(x: npt.ArrayLike, axis: int = -1, keepdims: bool = False) -> FloatArray:
-    """log Σ exp(x) along `axis`, stable; −inf where every term is −inf (no warning).
+def log_sum_exp(x: npt.ArrayLike, axis: int | None = -1, keepdims: bool = False) -> FloatArray:
+    """log Σ exp(x) along `axis` (every entry for None), stable; −inf where every term is −inf.
 
-    The same as `scipy.special.logsumexp` for real input, without its per-call overhead
-    (this runs several times per particle-filter step).
+    The one log-sum-exp of cooploc's estimators: the same as `scipy.special.logsumexp`
+    for real input, without its per-call overhead (≈ 0.1–0.5 ms of array-API dispatch,
+    and tempering or association loops call it dozens of times a step). No warning is
+    raised for all −inf input. A reduction over every entry returns a float.
     """
     x = np.asarray(x, dtype=float)
     top = x.max(axis=axis, keepdims=True, initial=-np.inf)
     safe = np.where(np.isfinite(top), top, 0.0)
     with np.errstate(divide="ignore"):
         out = np.log(np.exp(x - safe).sum(axis=axis, keepdims=True)) + safe
-    return out if keepdims else np.squeeze(out, axis=axis)
+    if keepdims:
+        return out
+    return float(out.reshape(())) if axis is None else np.squeeze(out, axis=axis)
 
 
 def normalize_log_weights(log_weights: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -137,9 +141,13 @@ def normalize_log_weights(log_weights: npt.ArrayLike) -> tuple[FloatArray, Float
 
 
 def effective_sample_size(log_weights: npt.ArrayLike) -> FloatArray:
-    """N_eff = 1 / Σ_l w_l² of each belief (…,), from normalised log-weights (…, N_p)."""
+    """N_eff = (Σ_l w_l)² / Σ_l w_l² of each belief (…,), from log-weights (…, N_p).
+
+    The weights need not be normalised (tempering evaluates candidate weights before
+    normalising them); for normalised ones this is 1 / Σ_l w_l².
+    """
     lw = np.asarray(log_weights, dtype=float)
-    return np.exp(-log_sum_exp(2.0 * lw, axis=-1))
+    return np.exp(2.0 * log_sum_exp(lw, axis=-1) - log_sum_exp(2.0 * lw, axis=-1))
 
 
 def systematic_resample(log_weights: npt.ArrayLike, rng: np.random.Generator,
@@ -279,58 +287,6 @@ def _whiten(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray
     return u, vt, log_norm
 
 
-@numba.njit(fastmath=True, cache=True, inline="always")
-def _quadratic_row(u: FloatArray, vt: FloatArray, b: int, j: int, row: np.ndarray) -> None:
-    """row[l] = Σ_e (u[b, j, e] + vt[b, e, l])²: contiguous in l, so it vectorises."""
-    d, Nl = vt.shape[1], vt.shape[2]
-    for l in range(Nl):
-        row[l] = 0.0
-    for e in range(d):
-        ue = u[b, j, e]
-        for l in range(Nl):
-            t = ue + vt[b, e, l]
-            row[l] += t * t
-
-
-@numba.njit(parallel=True, fastmath=True, cache=True)
-def _kernel_matrix(u: np.ndarray, vt: np.ndarray, out: np.ndarray, shift: FloatArray) -> None:
-    """out[b, j, l] = exp(−½ (q_bjl − min_l q_bjl)) in float32; shift[b, j] = −½ min_l q_bjl."""
-    B, Nj = u.shape[0], u.shape[1]
-    Nl = vt.shape[2]
-    half = np.float32(0.5)
-    for bj in numba.prange(B * Nj):
-        b = bj // Nj
-        j = bj - b * Nj
-        row = out[b, j]
-        _quadratic_row(u, vt, b, j, row)
-        q_min = row[0]
-        for l in range(Nl):
-            q_min = min(q_min, row[l])
-        shift[b, j] = -0.5 * q_min
-        for l in range(Nl):
-            row[l] = np.exp(-half * (row[l] - q_min))
-
-
-@numba.njit(parallel=True, fastmath=True, cache=True)
-def _kernel_sum(u: FloatArray, vt: FloatArray, log_norm: FloatArray, w: FloatArray,
-                out: FloatArray) -> None:
-    """out[b, j] = log Σ_l w[b, l] exp(log_norm[b] − ½ q_bjl), in float64, shifted by min q."""
-    B, Nj = u.shape[0], u.shape[1]
-    Nl = vt.shape[2]
-    for bj in numba.prange(B * Nj):
-        b = bj // Nj
-        j = bj - b * Nj
-        row = np.empty(Nl)
-        _quadratic_row(u, vt, b, j, row)
-        q_min = row[0]
-        for l in range(Nl):
-            q_min = min(q_min, row[l])
-        acc = 0.0
-        for l in range(Nl):
-            acc += w[b, l] * np.exp(-0.5 * (row[l] - q_min))
-        out[b, j] = log_norm[b] - 0.5 * q_min + np.log(acc)
-
-
 @dataclass(frozen=True, slots=True)
 class PairKernel:
     """Kernel values of all particle pairs of B blocks, stored once and reused.
@@ -379,7 +335,9 @@ def pair_kernel(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray) ->
     values = np.empty((u.shape[0], u.shape[1], vt.shape[2]), dtype=np.float32)
     shift = np.zeros(u.shape[:2])
     if values.size:
-        _kernel_matrix(u.astype(np.float32), vt.astype(np.float32), values, shift)
+        from cooploc._particle_kernels import kernel_matrix
+
+        kernel_matrix(u.astype(np.float32), vt.astype(np.float32), values, shift)
     return PairKernel(values, log_norm[:, None] + shift)
 
 
@@ -396,7 +354,9 @@ def pair_kernel_log_sum(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatA
     out = np.empty(u.shape[:2])
     if out.size:
         with np.errstate(divide="ignore"):
-            _kernel_sum(u, vt, log_norm, w, out)
+            from cooploc._particle_kernels import kernel_sum
+
+            kernel_sum(u, vt, log_norm, w, out)
     return out
 
 

@@ -15,21 +15,20 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-matplotlib.use("Agg")  # files only; no display on servers and CI
-import matplotlib.pyplot as plt
 import numpy as np
 
 from cooploc.metrics import VEHICLE, ecdf
 
 if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
     from cooploc.experiment import ExperimentResult
 
 __all__ = [
     "format_number",
     "line_panels",
     "per_run_rmse_cdf",
+    "pyplot",
     "rmse_over_time",
     "run_figures",
     "run_report",
@@ -45,21 +44,32 @@ def _style(name: str) -> dict[str, Any]:
     return {"linestyle": "--", "color": "0.3"} if name in BOUND_ESTIMATORS else {}
 
 
-def _panels(n: int, title: str) -> tuple[plt.Figure, np.ndarray]:
+def pyplot() -> Any:
+    """`matplotlib.pyplot` with the Agg backend (files only: no display on servers and CI),
+    imported on first use so that `import cooploc` and the command line stay fast."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _panels(n: int, title: str) -> tuple[Figure, np.ndarray]:
     cols = min(n, 3)
     rows = int(np.ceil(n / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.3 * rows), squeeze=False)
+    fig, axes = pyplot().subplots(rows, cols, figsize=(4.2 * cols, 3.3 * rows), squeeze=False)
     fig.suptitle(title)
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
     return fig, axes.ravel()
 
 
-def _save(fig: plt.Figure, axes: np.ndarray, path: Path) -> Path:
+def _save(fig: Figure, axes: np.ndarray, path: Path) -> Path:
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
+    pyplot().close(fig)
     return path
 
 

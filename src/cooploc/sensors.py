@@ -39,15 +39,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Protocol, runtime_checkable
+from typing import Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
 
 from cooploc.errors import InvalidInputError
 from cooploc.gaussian import gaussian_logpdf
+from cooploc.geometry import to_local, wrap_angle
 from cooploc.motion import sample_gaussian
-from cooploc.types import Batch, FloatArray, IntArray, check_covariances, float_array
+from cooploc.types import Batch, FloatArray, IntArray, SensorModel, check_covariances, float_array
 
 __all__ = [
     "AngleOfArrival",
@@ -56,21 +57,9 @@ __all__ = [
     "InfrastructureRadar",
     "Odometry",
     "RelativePosition",
-    "SensorModel",
-    "rotation",
     "selection_matrix",
     "sensor_from_dict",
-    "to_local",
 ]
-
-
-@runtime_checkable
-class SensorModel(Protocol):
-    """A sensor that produces one kind of `Batch`."""
-
-    name: ClassVar[str]
-
-    def to_dict(self) -> dict[str, Any]: ...
 
 
 def selection_matrix(indices: tuple[int, ...], dim: int) -> FloatArray:
@@ -242,19 +231,6 @@ class RelativePosition(_PerEntityCovariance):
         return gaussian_logpdf(z - (feature @ Hf.T - vehicle @ Hx.T), cov)
 
 
-def rotation(yaw: npt.ArrayLike) -> FloatArray:
-    """2-D rotation matrices R(θ) (..., 2, 2) that turn sensor-frame vectors into the global frame."""
-    yaw = np.asarray(yaw, dtype=float)
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-
-
-def to_local(pose: npt.ArrayLike, points: FloatArray) -> FloatArray:
-    """Points (n, 2) in the global frame seen from a sensor at pose [x, y, yaw]: R(θ)ᵀ (p − t)."""
-    pose = np.asarray(pose, dtype=float)
-    return (np.asarray(points, dtype=float) - pose[:2]) @ rotation(pose[2])
-
-
 def _detect_and_clutter(
     z: FloatArray,
     cov: FloatArray,
@@ -400,11 +376,6 @@ class Odometry(_PerEntityCovariance):
         return Batch(z, cov, ids, ids)
 
 
-def _wrap(angle: npt.ArrayLike) -> FloatArray:
-    """Angles wrapped to [−π, π) (the convention of `cooploc.metrics.wrap_angle`)."""
-    return (np.asarray(angle, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
-
-
 @dataclass(frozen=True)
 class AngleOfArrival:
     """AoA of a neighbour's signal relative to the receiver's heading, two side arrays.
@@ -472,13 +443,13 @@ class AngleOfArrival:
         ix, iy, ia = self.state_indices
         dx = transmitter[..., ix] - receiver[..., ix]
         dy = transmitter[..., iy] - receiver[..., iy]
-        return _wrap(np.arctan2(dy, dx) - receiver[..., ia])
+        return wrap_angle(np.arctan2(dy, dx) - receiver[..., ia])
 
     def in_view(self, theta: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """Whether relative angles θ fall in the left (+π/2) or right (−π/2) array's view."""
         theta = np.asarray(theta, dtype=float)
-        return ((np.abs(_wrap(theta - np.pi / 2)) <= self.field_of_view)
-                | (np.abs(_wrap(theta + np.pi / 2)) <= self.field_of_view))
+        return ((np.abs(wrap_angle(theta - np.pi / 2)) <= self.field_of_view)
+                | (np.abs(wrap_angle(theta + np.pi / 2)) <= self.field_of_view))
 
     def measure(self, ids: npt.ArrayLike, states: FloatArray, links: npt.ArrayLike,
                 rng: np.random.Generator) -> Batch:
@@ -507,11 +478,11 @@ class AngleOfArrival:
         receivers, transmitters = ends[seen, 0], ends[seen, 1]
         cov = self.variance_of(receivers)
         z = theta[seen] + np.sqrt(cov[:, 0, 0]) * rng.standard_normal(receivers.size)
-        return Batch(_wrap(z)[:, None], cov, receivers, transmitters)
+        return Batch(wrap_angle(z)[:, None], cov, receivers, transmitters)
 
     def log_likelihood(self, batch: Batch, receiver: FloatArray, transmitter: FloatArray) -> FloatArray:
         """log N(wrap(z − θ); 0, σ²_θ) per row, states (..., M, dx) aligned with rows."""
-        residual = _wrap(batch.z[:, 0] - self.bearing(receiver, transmitter))
+        residual = wrap_angle(batch.z[:, 0] - self.bearing(receiver, transmitter))
         return gaussian_logpdf(residual[..., None], batch.cov)
 
     def to_dict(self) -> dict[str, Any]:

@@ -24,27 +24,26 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
 
 from cooploc.errors import InvalidInputError
 
-if TYPE_CHECKING:
-    from cooploc.motion import MotionModel
-    from cooploc.sensors import SensorModel
-
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
 
 __all__ = [
+    "AssociationTruth",
     "Batch",
     "Estimate",
     "FloatArray",
     "Frame",
     "IntArray",
+    "MotionModel",
     "Recording",
+    "SensorModel",
     "Setup",
     "StateLayout",
     "StateSet",
@@ -386,6 +385,43 @@ class StateSet:
         return cls(ids, mean, cov)
 
 
+# ----------------------------------------------------------------------------
+# the models a Setup holds (implementations: cooploc.motion, cooploc.sensors)
+# ----------------------------------------------------------------------------
+
+
+@runtime_checkable
+class MotionModel(Protocol):
+    """A linear-Gaussian motion model x_k = F x_{k-1} + B u_k + w_k."""
+
+    name: ClassVar[str]
+    dim: int
+    state_dependent_noise: ClassVar[bool]
+
+    def transition_matrix(self, dt: float) -> FloatArray:
+        """F (dx, dx)."""
+        ...
+
+    def noise_covariance(self, dt: float, states: FloatArray | None = None) -> FloatArray:
+        """Q, (dx, dx) or per entity (n, dx, dx) where it depends on the state."""
+        ...
+
+    def control_matrix(self, dt: float) -> FloatArray | None:
+        """B (dx, du), or None for a model without input."""
+        ...
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+
+@runtime_checkable
+class SensorModel(Protocol):
+    """A sensor that produces one kind of `Batch`."""
+
+    name: ClassVar[str]
+
+    def to_dict(self) -> dict[str, Any]: ...
+
+
 @dataclass(frozen=True)
 class Setup:
     """Static knowledge an estimator may use (never truth).
@@ -570,6 +606,24 @@ class Truth:
 
 
 @dataclass(frozen=True)
+class AssociationTruth:
+    """What a known-association reference may read of the truth.
+
+    Attributes
+    ----------
+    origin : per step, per batch kind, (M,) the true origin id of each row (-1 clutter).
+    sensor_poses : (P, 3) poses of the infrastructure sensors (known registration).
+    """
+
+    origin: Sequence[Mapping[str, IntArray]]
+    sensor_poses: FloatArray
+
+    @classmethod
+    def of(cls, truth: Truth) -> AssociationTruth:
+        return cls(truth.origin, truth.sensor_poses)
+
+
+@dataclass(frozen=True)
 class Recording:
     """A whole run: static setup, one frame per step, and the truth behind them."""
 
@@ -611,6 +665,21 @@ class Estimate:
     vehicles : beliefs of the vehicles present in the frame.
     features : beliefs of the features, or None if the method does not estimate them.
     info : diagnostics (association marginals, iterations used, bytes exchanged, ...).
+
+    The `info` keys that the runner and the metrics read — this is their one
+    definition; every other key is a diagnostic of its estimator, documented there:
+
+    - ``"set_valued"`` (bool): the vehicle ids are slots, not identities (anonymous
+      measurements); `metrics.evaluate` scores the set after an optimal assignment.
+    - ``"v2f_association"`` ((M,) int): the decided origin (feature id, −1 for clutter
+      or undecided) of each V2F row of the frame, for estimators that name features by
+      the scenario's ids; scored as association accuracy.
+    - ``"v2f_track"`` ((M,) int): the estimator's own track id of each V2F row (−1:
+      none), for estimators that start feature tracks of their own; tracks are scored
+      as the true feature most of their rows came from (`metrics.score_association`),
+      and feature estimates are renamed through that map.
+    - ``"v2f_discarded"`` (int): V2F rows left unused this step (with ``"v2f_track"``);
+      summed into `discarded_share`.
     """
 
     vehicles: StateSet

@@ -19,43 +19,21 @@ GNSS fix (`birth_beliefs`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
 from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
 from cooploc.gaussian import Gaussians, kf_predict
-from cooploc.motion import MotionModel
 from cooploc.params import Params
-from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup, Truth
+from cooploc.types import Estimate, FloatArray, Frame, IntArray, MotionModel, Setup
 
 __all__ = [
-    "AssociationTruth",
     "Estimator",
     "VehicleBeliefs",
     "birth_beliefs",
     "default_birth_cov",
     "predict_steps",
 ]
-
-
-@dataclass(frozen=True)
-class AssociationTruth:
-    """What a known-association reference may read of the truth.
-
-    Attributes
-    ----------
-    origin : per step, per batch kind, (M,) the true origin id of each row (-1 clutter).
-    sensor_poses : (P, 3) poses of the infrastructure sensors (known registration).
-    """
-
-    origin: Sequence[Mapping[str, IntArray]]
-    sensor_poses: FloatArray
-
-    @classmethod
-    def of(cls, truth: Truth) -> AssociationTruth:
-        return cls(truth.origin, truth.sensor_poses)
 
 
 @runtime_checkable

@@ -139,7 +139,8 @@ from scipy.linalg import cho_solve_banded, cholesky_banded
 
 from cooploc.estimators.base import birth_beliefs
 from cooploc.gaussian import Gaussians, kf_update
-from cooploc.params import Params, require
+from cooploc.params import Params, param
+from cooploc.registry import register_estimator
 from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
 
 __all__ = [
@@ -780,28 +781,14 @@ class FactorGraphParams(Params):
         docstring); False = radar noise only (paper, eqs. 14–16).
     """
 
-    solver: str = "sparse"
-    max_iterations: int = 100
-    relative_tolerance: float = 1e-5
-    absolute_tolerance: float = 1e-5
-    lambda_initial: float = 1e-5
-    gap_variance: float = 900.0
-    huber: float = 0.0
+    solver: str = param("sparse", choices=("sparse", "gtsam"))
+    max_iterations: int = param(100, ge=1)
+    relative_tolerance: float = param(1e-5, gt=0)
+    absolute_tolerance: float = param(1e-5, gt=0)
+    lambda_initial: float = param(1e-5, gt=0)
+    gap_variance: float = param(900.0, gt=0)
+    huber: float = param(0.0, ge=0)
     topology_odometry_noise: bool = False
-
-    @classmethod
-    def owner(cls) -> str:
-        return "fg-topology"
-
-    def validate(self) -> None:
-        o = self.owner()
-        require(self.solver in ("sparse", "gtsam"), o, "solver", self.solver,
-                "be 'sparse' or 'gtsam'")
-        require(self.max_iterations >= 1, o, "max_iterations", self.max_iterations, "be >= 1")
-        for key in ("relative_tolerance", "absolute_tolerance", "lambda_initial", "gap_variance"):
-            value = getattr(self, key)
-            require(np.isfinite(value) and value > 0, o, key, value, "be > 0")
-        require(np.isfinite(self.huber) and self.huber >= 0, o, "huber", self.huber, "be >= 0")
 
 
 class _BatchGraph:
@@ -860,18 +847,32 @@ class _BatchGraph:
         return out
 
 
+@dataclass(frozen=True)
+class FgTopologyOldParams(FactorGraphParams):
+    """`fg-topology-old` settings (see `FactorGraphParams`)."""
+
+
+@dataclass(frozen=True)
+class FgTopologyNewParams(FactorGraphParams):
+    """`fg-topology-new` settings (see `FactorGraphParams`)."""
+
+
+@register_estimator
 class FgTopologyOld(_BatchGraph):
     """Batch LM on GPS, odometry and the old topology factor (eq. 8, Gulati 2016)."""
 
     name: ClassVar[str] = "fg-topology-old"
+    Params: ClassVar[type[Params]] = FgTopologyOldParams
     summary: ClassVar[str] = "factor graph, GPS + odometry + old topology factor (eq. 8), batch LM"
     kind: ClassVar[str] = OLD
 
 
+@register_estimator
 class FgTopologyNew(_BatchGraph):
     """Batch LM on GPS, odometry and the new topology factor (eqs. 9–16)."""
 
     name: ClassVar[str] = "fg-topology-new"
+    Params: ClassVar[type[Params]] = FgTopologyNewParams
     summary: ClassVar[str] = "factor graph, GPS + odometry + new topology factor (eqs. 9–16), batch LM"
     kind: ClassVar[str] = NEW
 
@@ -887,26 +888,14 @@ class ISAM2Params(Params):
     gap_variance, huber, topology_odometry_noise : as for the batch estimators.
     """
 
-    relinearize_threshold: float = 0.1
-    relinearize_skip: int = 10
-    gap_variance: float = 900.0
-    huber: float = 0.0
+    relinearize_threshold: float = param(0.1, gt=0)
+    relinearize_skip: int = param(10, ge=1)
+    gap_variance: float = param(900.0, gt=0)
+    huber: float = param(0.0, ge=0)
     topology_odometry_noise: bool = False
 
-    @classmethod
-    def owner(cls) -> str:
-        return "fg-isam2"
 
-    def validate(self) -> None:
-        o = self.owner()
-        require(np.isfinite(self.relinearize_threshold) and self.relinearize_threshold > 0, o,
-                "relinearize_threshold", self.relinearize_threshold, "be > 0")
-        require(self.relinearize_skip >= 1, o, "relinearize_skip", self.relinearize_skip, "be >= 1")
-        require(np.isfinite(self.gap_variance) and self.gap_variance > 0, o, "gap_variance",
-                self.gap_variance, "be > 0")
-        require(np.isfinite(self.huber) and self.huber >= 0, o, "huber", self.huber, "be >= 0")
-
-
+@register_estimator
 class FgIsam2:
     """The new-factor graph, updated incrementally with GTSAM's iSAM2; filtered estimates."""
 

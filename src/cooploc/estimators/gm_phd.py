@@ -64,10 +64,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from cooploc.estimators._numerics import logsumexp
 from cooploc.estimators.base import default_birth_cov, predict_steps
 from cooploc.gaussian import Gaussians, symmetrize
-from cooploc.params import Params, require
+from cooploc.params import Params, param
+from cooploc.particles import log_sum_exp
+from cooploc.registry import register_estimator
 from cooploc.types import Estimate, FloatArray, Frame, Recording, Setup, StateSet
 
 __all__ = ["GMPHD", "GMPHDParams", "Mixture", "merge_components", "phd_update", "stonesoup_reference"]
@@ -126,7 +127,7 @@ def phd_update(prior: Mixture, z: FloatArray, R: FloatArray, H: FloatArray,
     cov = symmetrize(I_KH @ prior.cov[:, None] @ np.swapaxes(I_KH, -1, -2)
                      + K @ R[None] @ np.swapaxes(K, -1, -2))
     numerator = log_pd + prior.log_w[:, None] + log_q                    # log p_D w_j q_j(z)
-    total = logsumexp(numerator, axis=0)                                  # log Σ_l p_D w_l q_l(z)
+    total = log_sum_exp(numerator, axis=0)                                  # log Σ_l p_D w_l q_l(z)
     log_kappa = np.log(clutter_intensity) if clutter_intensity > 0 else -np.inf
     log_w = numerator - np.logaddexp(log_kappa, total)[None]              # eq. (26)
     detected = Mixture(log_w.T.reshape(-1), np.swapaxes(mean, 0, 1).reshape(-1, dx),
@@ -150,7 +151,7 @@ def merge_components(mixture: Mixture, prune_threshold: float, merge_threshold: 
         d = m.mean[idx] - m.mean[j]
         white = np.linalg.solve(precision_L[idx], d[..., None])[..., 0]
         group = idx[(white**2).sum(-1) <= merge_threshold]                # (m_i − m_j)ᵀ P_i⁻¹ (…) ≤ U
-        log_w = logsumexp(m.log_w[group])
+        log_w = log_sum_exp(m.log_w[group], axis=None)
         w = np.exp(m.log_w[group] - log_w)                                # normalised within the group
         mean = w @ m.mean[group]
         spread = m.mean[group] - mean
@@ -177,32 +178,15 @@ class GMPHDParams(Params):
     max_components : J_max of Table II.
     """
 
-    survival_probability: float = 0.99
-    max_detection_probability: float = 0.99
-    birth_weight: float = 0.0
-    prune_threshold: float = 1e-5
-    merge_threshold: float = 4.0
-    max_components: int = 100
-
-    @classmethod
-    def owner(cls) -> str:
-        return "gm-phd"
-
-    def validate(self) -> None:
-        o = self.owner()
-        require(0 < self.survival_probability <= 1, o, "survival_probability",
-                self.survival_probability, "lie in (0, 1]")
-        require(0 < self.max_detection_probability < 1, o, "max_detection_probability",
-                self.max_detection_probability, "lie in (0, 1)")
-        require(np.isfinite(self.birth_weight) and self.birth_weight >= 0, o, "birth_weight",
-                self.birth_weight, "be >= 0")
-        require(0 < self.prune_threshold < 1, o, "prune_threshold", self.prune_threshold,
-                "lie in (0, 1)")
-        require(np.isfinite(self.merge_threshold) and self.merge_threshold >= 0, o,
-                "merge_threshold", self.merge_threshold, "be >= 0")
-        require(self.max_components >= 1, o, "max_components", self.max_components, "be >= 1")
+    survival_probability: float = param(0.99, gt=0, le=1)
+    max_detection_probability: float = param(0.99, gt=0, lt=1)
+    birth_weight: float = param(0.0, ge=0)
+    prune_threshold: float = param(1e-5, gt=0, lt=1)
+    merge_threshold: float = param(4.0, ge=0)
+    max_components: int = param(100, ge=1)
 
 
+@register_estimator
 class GMPHD:
     """Gaussian-mixture PHD filter of the anonymous GPS rows (Vo & Ma 2006)."""
 

@@ -32,6 +32,7 @@ import numpy as np
 from cooploc.estimators.base import VehicleBeliefs
 from cooploc.gaussian import Gaussians, kf_predict, kf_update
 from cooploc.params import Params
+from cooploc.registry import register_estimator
 from cooploc.types import Batch, Estimate, Frame, Setup, StateSet
 
 __all__ = ["GnssKF", "GnssKFParams"]
@@ -41,11 +42,8 @@ __all__ = ["GnssKF", "GnssKFParams"]
 class GnssKFParams(Params):
     """`gnss-kf` has no tuning parameters: it uses the scenario's models as given."""
 
-    @classmethod
-    def owner(cls) -> str:
-        return "gnss-kf"
 
-
+@register_estimator
 class GnssKF:
     """Kalman filter per vehicle from its own GNSS fixes (batched over vehicles)."""
 

@@ -62,7 +62,6 @@ from cooploc.association import (
 )
 from cooploc.consensus import GroupConsensus, flood
 from cooploc.errors import ConfigError
-from cooploc.estimators.base import AssociationTruth
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
 from cooploc.gaussian import (
     Gaussians,
@@ -73,7 +72,7 @@ from cooploc.gaussian import (
     to_information,
 )
 from cooploc.network import Network
-from cooploc.params import Params, require
+from cooploc.params import Params, param
 from cooploc.particles import (
     Particles,
     effective_sample_size,
@@ -82,7 +81,8 @@ from cooploc.particles import (
     sample_gaussians,
     weighted_moments,
 )
-from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+from cooploc.registry import register_estimator
+from cooploc.types import AssociationTruth, Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
 
 __all__ = ["ICP", "ICPDALC", "ICPDAPF", "ICPDALCParams", "ICPDAPFParams", "ICPParams", "relative_message"]
 
@@ -99,25 +99,12 @@ class ICPParams(Params):
         (m, m/s; paper: 0.1 and 0.1).
     """
 
-    consensus_iterations: int = 20
-    max_iterations: int = 10
-    position_tolerance: float = 0.1
-    velocity_tolerance: float = 0.1
+    consensus_iterations: int = param(20, ge=0)
+    max_iterations: int = param(10, ge=1)
+    position_tolerance: float = param(0.1, gt=0)
+    velocity_tolerance: float = param(0.1, gt=0)
     feature_memory: bool = False
     feedback: bool = False
-
-    @classmethod
-    def owner(cls) -> str:
-        return "icp"
-
-    def validate(self) -> None:
-        o = self.owner()
-        require(self.consensus_iterations >= 0, o, "consensus_iterations", self.consensus_iterations,
-                "be >= 0")
-        require(self.max_iterations >= 1, o, "max_iterations", self.max_iterations, "be >= 1")
-        for key in ("position_tolerance", "velocity_tolerance"):
-            value = getattr(self, key)
-            require(np.isfinite(value) and value > 0, o, key, value, "be > 0")
 
 
 def relative_message(A: FloatArray, a: FloatArray, z: FloatArray, R: FloatArray
@@ -169,6 +156,7 @@ class _FeatureCopies:
         return np.trace(self.Lam, axis1=-2, axis2=-1) > 0
 
 
+@register_estimator
 class ICP:
     """`icp`: Gaussian BPA-L with consensus, known association (Brambilla ref. [40])."""
 
@@ -385,24 +373,11 @@ class ICPDALCParams(ICPParams):
         discarded (counted in `info["v2f_discarded"]`).
     """
 
-    da_iterations: int = 5
-    threshold: float = 0.5
-    detection_probability: float = 0.9
-    new_feature_intensity: float = 1e-5
-
-    @classmethod
-    def owner(cls) -> str:
-        return "icp-da-lc"
-
-    def validate(self) -> None:
-        super().validate()
-        o = self.owner()
-        require(self.da_iterations >= 1, o, "da_iterations", self.da_iterations, "be >= 1")
-        require(0 < self.threshold <= 1, o, "threshold", self.threshold, "lie in (0, 1]")
-        require(0 < self.detection_probability < 1, o, "detection_probability",
-                self.detection_probability, "lie in (0, 1) (tracks out of view must be missable)")
-        require(np.isfinite(self.new_feature_intensity) and self.new_feature_intensity > 0, o,
-                "new_feature_intensity", self.new_feature_intensity, "be > 0")
+    da_iterations: int = param(5, ge=1)
+    threshold: float = param(0.5, gt=0, le=1)
+    detection_probability: float = param(0.9, gt=0, lt=1,
+                                         must="lie in (0, 1) (tracks out of view must be missable)")
+    new_feature_intensity: float = param(1e-5, gt=0)
 
 
 @dataclass(frozen=True)
@@ -419,6 +394,7 @@ class _Association:
     log_likelihood: FloatArray | None = None      # (n, F, W) log η(α = ℓ) of eq. (13)
 
 
+@register_estimator
 class ICPDALC(ICP):
     """`icp-da-lc`: per-vehicle BPA-DA, MAP pairing with threshold, Gaussian BPA-L (Brambilla §IV-D)."""
 
@@ -577,30 +553,15 @@ class ICPDAPFParams(ICPDALCParams):
     proposal_floor : standard deviations (m, m/s) added to the feature proposal.
     """
 
-    n_particles: int = 500
-    proposal_inflation: float = 2.0
-    min_association: float = 1e-3
-    kernel_bandwidth: float = 1.0
-    proposal_floor: tuple[float, float] = (1.0, 0.1)
-
-    @classmethod
-    def owner(cls) -> str:
-        return "icp-da-pf"
-
-    def validate(self) -> None:
-        super().validate()
-        o = self.owner()
-        require(self.n_particles >= 2, o, "n_particles", self.n_particles, "be >= 2")
-        require(np.isfinite(self.proposal_inflation) and self.proposal_inflation >= 1, o,
-                "proposal_inflation", self.proposal_inflation, "be >= 1")
-        require(0 <= self.min_association < 1, o, "min_association", self.min_association,
-                "lie in [0, 1)")
-        require(np.isfinite(self.kernel_bandwidth) and self.kernel_bandwidth >= 0, o, "kernel_bandwidth",
-                self.kernel_bandwidth, "be >= 0")
-        require(len(self.proposal_floor) == 2 and all(np.isfinite(v) and v >= 0 for v in self.proposal_floor),
-                o, "proposal_floor", self.proposal_floor, "be two standard deviations >= 0 (m, m/s)")
+    n_particles: int = param(500, ge=2)
+    proposal_inflation: float = param(2.0, ge=1)
+    min_association: float = param(1e-3, ge=0, lt=1)
+    kernel_bandwidth: float = param(1.0, ge=0)
+    proposal_floor: tuple[float, float] = param((1.0, 0.1), length=2, ge=0,
+                                                must="be two standard deviations >= 0 (m, m/s)")
 
 
+@register_estimator
 class ICPDAPF(ICPDALC):
     """`icp-da-pf`: BPA-DA, soft-association particle BPA-L with log-likelihood consensus (§IV-C)."""
 

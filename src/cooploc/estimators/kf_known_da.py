@@ -21,10 +21,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from cooploc.estimators.base import AssociationTruth
 from cooploc.estimators.gnss_kf import GnssKF
 from cooploc.params import Params
-from cooploc.types import Batch, Estimate, Frame, Setup
+from cooploc.registry import register_estimator
+from cooploc.types import AssociationTruth, Batch, Estimate, Frame, Setup
 
 __all__ = ["KFKnownDA", "KFKnownDAParams"]
 
@@ -33,11 +33,8 @@ __all__ = ["KFKnownDA", "KFKnownDAParams"]
 class KFKnownDAParams(Params):
     """`kf-known-da` has no tuning parameters: it uses the scenario's models as given."""
 
-    @classmethod
-    def owner(cls) -> str:
-        return "kf-known-da"
 
-
+@register_estimator
 class KFKnownDA:
     """Per-vehicle Kalman filter of anonymous GPS rows given their true association."""
 

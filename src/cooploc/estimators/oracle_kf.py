@@ -27,14 +27,14 @@ from typing import ClassVar
 import numpy as np
 
 from cooploc.estimators.base import (
-    AssociationTruth,
     birth_beliefs,
     default_birth_cov,
     predict_steps,
 )
 from cooploc.gaussian import Gaussians, block_diagonal, kf_update, symmetrize
-from cooploc.params import Params, require
-from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+from cooploc.params import Params, param
+from cooploc.registry import register_estimator
+from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
 
 __all__ = ["OracleKF", "OracleKFParams"]
 
@@ -49,17 +49,10 @@ class OracleKFParams(Params):
         (keeps the joint state bounded in traffic where features come and go).
     """
 
-    feature_timeout: int = 100
-
-    @classmethod
-    def owner(cls) -> str:
-        return "oracle-kf"
-
-    def validate(self) -> None:
-        require(self.feature_timeout >= 1, self.owner(), "feature_timeout",
-                self.feature_timeout, "be >= 1")
+    feature_timeout: int = param(100, ge=1)
 
 
+@register_estimator
 class OracleKF:
     """Joint Kalman filter over all vehicles and features with the true association."""
 

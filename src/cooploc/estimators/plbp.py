@@ -77,8 +77,9 @@ from cooploc.gaussian import (
     symmetrize,
     to_information,
 )
-from cooploc.metrics import wrap_angle
-from cooploc.params import Params, require
+from cooploc.geometry import wrap_angle
+from cooploc.params import Params, param
+from cooploc.registry import register_estimator
 from cooploc.sensors import AngleOfArrival
 from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateLayout, StateSet
 
@@ -112,31 +113,16 @@ class PLBPParams(Params):
     central_weight : w₀ of the unscented points.
     """
 
-    linearization_iterations: int = 5
-    bp_iterations: int = 3
+    linearization_iterations: int = param(5, ge=1)
+    bp_iterations: int = param(3, ge=1)
     sigma_points: Literal["unscented", "cubature"] = "unscented"
-    central_weight: float = 1.0 / 3.0
-
-    @classmethod
-    def owner(cls) -> str:
-        return "plbp"
-
-    def validate(self) -> None:
-        o = self.owner()
-        require(self.linearization_iterations >= 1, o, "linearization_iterations",
-                self.linearization_iterations, "be >= 1")
-        require(self.bp_iterations >= 1, o, "bp_iterations", self.bp_iterations, "be >= 1")
-        require(0.0 <= self.central_weight < 1.0, o, "central_weight", self.central_weight,
-                "lie in [0, 1)")
+    central_weight: float = param(1.0 / 3.0, ge=0, lt=1)
 
 
 @dataclass(frozen=True)
 class PriorLBPParams(PLBPParams):
     """Parameters of `prior-lbp` (as `plbp`; the links are linearized once, at the priors)."""
 
-    @classmethod
-    def owner(cls) -> str:
-        return "prior-lbp"
 
 
 # ----------------------------------------------------------------------------
@@ -631,6 +617,7 @@ def iteration_errors(estimate: Estimate, true_states: FloatArray, layout: StateL
 # ----------------------------------------------------------------------------
 
 
+@register_estimator
 class PLBP:
     """Posterior-linearization Gaussian BP over AoA links, one solve per frame."""
 
@@ -713,6 +700,7 @@ class PLBP:
         return from_information(Lam, eta)
 
 
+@register_estimator
 class PriorLBP(PLBP):
     """The baseline: the same Gaussian BP, linearized once w.r.t. the priors."""
 

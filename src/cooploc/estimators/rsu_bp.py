@@ -83,7 +83,7 @@ from cooploc.association import association_weights, bp_association, decide, pad
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, predict_steps
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
-from cooploc.params import Params, require
+from cooploc.params import Params, param
 from cooploc.particles import (
     Particles,
     effective_sample_size,
@@ -98,6 +98,7 @@ from cooploc.particles import (
     systematic_resample,
     weighted_moments,
 )
+from cooploc.registry import register_estimator
 from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet, lookup_ids
 
 __all__ = ["RsuBP", "RsuBPParams"]
@@ -126,34 +127,21 @@ class RsuBPParams(Params):
         detections (the paper's footnote 1); "prior" — sample `Setup.feature_prior`.
     """
 
-    n_particles: int = 600
-    n_da_iterations: int = 5
-    n_correction_iterations: int = 1
-    resample_threshold: float = 1.0
-    association_threshold: float = 0.5
+    n_particles: int = param(600, ge=2)
+    n_da_iterations: int = param(5, ge=1)
+    n_correction_iterations: int = param(1, ge=1)
+    resample_threshold: float = param(1.0, ge=0, le=1)
+    association_threshold: float = param(0.5, ge=0, le=1)
     shrinkage_move: bool = True
     kernel_memory_mb: float = 512.0
-    feature_init: str = "measurements"
-
-    @classmethod
-    def owner(cls) -> str:
-        return "rsu-bp"
+    feature_init: str = param("measurements", choices=("measurements", "prior"))
 
     def validate(self) -> None:
-        o = self.owner()
-        require(self.n_particles >= 2, o, "n_particles", self.n_particles, "be >= 2")
-        require(self.n_da_iterations >= 1, o, "n_da_iterations", self.n_da_iterations, "be >= 1")
-        require(self.n_correction_iterations >= 1, o, "n_correction_iterations",
-                self.n_correction_iterations, "be >= 1")
-        require(0.0 <= self.resample_threshold <= 1.0, o, "resample_threshold",
-                self.resample_threshold, "lie in [0, 1]")
-        require(0.0 <= self.association_threshold <= 1.0, o, "association_threshold",
-                self.association_threshold, "lie in [0, 1]")
-        require(self.kernel_memory_mb >= 0, o, "kernel_memory_mb", self.kernel_memory_mb, "be >= 0")
-        require(self.feature_init in ("measurements", "prior"), o, "feature_init", self.feature_init,
-                "be 'measurements' or 'prior'")
+        # no finiteness asked: inf means "always store the kernel"
+        self.require(self.kernel_memory_mb >= 0, "kernel_memory_mb", "be >= 0")
 
 
+@register_estimator
 class RsuBP:
     """Nonparametric BP at the RSU over all vehicles and features, with BP association."""
 

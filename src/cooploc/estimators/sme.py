@@ -158,10 +158,11 @@ import numpy as np
 from scipy.special import comb, factorial
 from scipy.stats import chi2
 
-from cooploc.estimators._numerics import logsumexp
 from cooploc.estimators.base import birth_beliefs, default_birth_cov
 from cooploc.gaussian import gaussian_logpdf, symmetrize
-from cooploc.params import Params, require
+from cooploc.params import Params, param
+from cooploc.particles import log_sum_exp
+from cooploc.registry import register_estimator
 from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup, StateSet
 
 __all__ = [
@@ -519,7 +520,7 @@ class PseudoMeasurement:
 def systematic_resample(log_weights: FloatArray, rng: np.random.Generator) -> IntArray:
     """Indices of a systematic resample of normalised log-weights (P,)."""
     P = log_weights.size
-    cumulative = np.cumsum(np.exp(log_weights - logsumexp(log_weights)))
+    cumulative = np.cumsum(np.exp(log_weights - log_sum_exp(log_weights, axis=None)))
     cumulative[-1] = 1.0
     positions = (rng.random() + np.arange(P)) / P
     return np.minimum(np.searchsorted(cumulative, positions), P - 1)
@@ -539,19 +540,10 @@ class _SmeParams(Params):
     """
 
     form: Literal["axes", "complex"] = "complex"
-    min_scale: float = 10.0
-    jitter: float = 1e-9
-    gate_probability: float = 0.9999
+    min_scale: float = param(10.0, gt=0)
+    jitter: float = param(1e-9, ge=0, lt=1)
+    gate_probability: float = param(0.9999, gt=0, lt=1)
     use_radar: bool = True
-
-    def validate(self) -> None:
-        o = self.owner()
-        require(np.isfinite(self.min_scale) and self.min_scale > 0, o, "min_scale", self.min_scale,
-                "be > 0")
-        require(np.isfinite(self.jitter) and 0 <= self.jitter < 1, o, "jitter", self.jitter,
-                "lie in [0, 1)")
-        require(0 < self.gate_probability < 1, o, "gate_probability", self.gate_probability,
-                "lie in (0, 1)")
 
 
 class _SmeFilter:
@@ -672,28 +664,15 @@ class SmePFParams(_SmeParams):
     max_stages : at most this many tempering stages per step.
     """
 
-    n_particles: int = 2000
-    resample_threshold: float = 0.5
+    n_particles: int = param(2000, ge=2)
+    resample_threshold: float = param(0.5, ge=0, le=1)
     relabel: bool = True
-    target_ess: float = 0.5
-    n_moves: int = 2
-    max_stages: int = 20
-
-    @classmethod
-    def owner(cls) -> str:
-        return "sme-pf"
-
-    def validate(self) -> None:
-        super().validate()
-        o = self.owner()
-        require(self.n_particles >= 2, o, "n_particles", self.n_particles, "be >= 2")
-        require(0 <= self.resample_threshold <= 1, o, "resample_threshold", self.resample_threshold,
-                "lie in [0, 1]")
-        require(0 < self.target_ess < 1, o, "target_ess", self.target_ess, "lie in (0, 1)")
-        require(self.n_moves >= 0, o, "n_moves", self.n_moves, "be >= 0")
-        require(self.max_stages >= 1, o, "max_stages", self.max_stages, "be >= 1")
+    target_ess: float = param(0.5, gt=0, lt=1)
+    n_moves: int = param(2, ge=0)
+    max_stages: int = param(20, ge=1)
 
 
+@register_estimator
 class SmePF(_SmeFilter):
     """SME particle filter over the joint state of all vehicles (the paper's method)."""
 
@@ -713,7 +692,7 @@ class SmePF(_SmeFilter):
         self._started = False
 
     def _moments(self) -> tuple[FloatArray, FloatArray]:
-        w = np.exp(self.log_w - logsumexp(self.log_w))
+        w = np.exp(self.log_w - log_sum_exp(self.log_w, axis=None))
         mean = np.einsum("p,pni->ni", w, self.particles)
         r = self.particles - mean
         cov = np.einsum("p,pni,pnj->nij", w, r, r)
@@ -800,7 +779,7 @@ class SmePF(_SmeFilter):
         return parents[idx], loglik[idx]
 
     def _ess(self) -> float:
-        return float(np.exp(2 * logsumexp(self.log_w) - logsumexp(2 * self.log_w)))
+        return float(np.exp(2 * log_sum_exp(self.log_w, axis=None) - log_sum_exp(2 * self.log_w, axis=None)))
 
     def _next_increment(self, loglik: FloatArray, remaining: float) -> float:
         """Largest δ ≤ remaining with ESS(w · p(y|x)^δ) ≥ target (bisection; Jasra et al. 2011)."""
@@ -808,7 +787,7 @@ class SmePF(_SmeFilter):
 
         def ess(delta: float) -> float:
             lw = self.log_w + delta * loglik
-            return float(np.exp(2 * logsumexp(lw) - logsumexp(2 * lw)))
+            return float(np.exp(2 * log_sum_exp(lw, axis=None) - log_sum_exp(2 * lw, axis=None)))
 
         if ess(remaining) >= target:
             return remaining
@@ -834,7 +813,7 @@ class SmePF(_SmeFilter):
                 loglik, remaining)
             # w ∝ w p(y | x)^δ   (eq. 19 pseudo-likelihood, tempered)
             self.log_w = self.log_w + delta * loglik
-            self.log_w -= logsumexp(self.log_w)
+            self.log_w -= log_sum_exp(self.log_w, axis=None)
             beta = 1.0 if delta >= remaining else beta + delta
             if beta < 1.0 or self._ess() < self.params.resample_threshold * self.log_w.size:
                 parents, loglik = self._resample(parents, loglik)
@@ -873,7 +852,7 @@ class SmePF(_SmeFilter):
                 if not np.isfinite(self.log_w).any():
                     self.log_w = np.zeros_like(self.log_w)
                     info["degenerate"] = True
-                self.log_w -= logsumexp(self.log_w)
+                self.log_w -= log_sum_exp(self.log_w, axis=None)
                 info["stages"] = 1
             else:
                 self._update(model, parents, info)
@@ -901,19 +880,12 @@ class SmeUKFParams(_SmeParams):
     alpha, beta, kappa : spread of the sigma points, prior-shape weight, secondary scaling.
     """
 
-    alpha: float = 1.0
+    alpha: float = param(1.0, gt=0)
     beta: float = 2.0
     kappa: float = 0.0
 
-    @classmethod
-    def owner(cls) -> str:
-        return "sme-ukf"
 
-    def validate(self) -> None:
-        super().validate()
-        require(np.isfinite(self.alpha) and self.alpha > 0, self.owner(), "alpha", self.alpha, "be > 0")
-
-
+@register_estimator
 class SmeUKF(_SmeFilter):
     """SME under an unscented Kalman filter over the joint state (§4.2.3 check)."""
 

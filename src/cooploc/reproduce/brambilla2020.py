@@ -29,10 +29,11 @@ from typing import Any
 import numpy as np
 
 from cooploc.estimators import estimators
-from cooploc.experiment import ExperimentConfig, ExperimentResult, run_experiment, run_generators, summarize
+from cooploc.experiment import ExperimentConfig, ExperimentResult, run_experiment, run_generators
 from cooploc.metrics import FEATURE, VEHICLE
 from cooploc.plots import format_number, line_panels
 from cooploc.reproduce import PaperExperiment, ReproduceOptions
+from cooploc.results import summarize
 from cooploc.scenarios import get_preset
 
 __all__ = ["EXPERIMENT", "FEATURE_COUNTS", "FEATURE_SPACINGS", "FEATURE_SPEEDS"]

@@ -20,9 +20,10 @@ from typing import Any
 import numpy as np
 
 from cooploc.estimators import estimators
-from cooploc.experiment import ExperimentConfig, run_experiment, run_sweep, summarize
+from cooploc.experiment import ExperimentConfig, run_experiment, run_sweep
 from cooploc.plots import format_number, per_run_rmse_cdf, sweep_plot
 from cooploc.reproduce import PaperExperiment, ReproduceOptions
+from cooploc.results import summarize
 from cooploc.scenarios.froehle2018 import FroehleParams
 
 __all__ = ["EXPERIMENT", "FEATURE_COUNTS", "V2F_VARIANCES", "analytic_gnss_rmse"]

@@ -37,7 +37,8 @@ import numpy as np
 from cooploc.estimators import make_estimator
 from cooploc.estimators.plbp import PLBPParams, PriorLBPParams, iteration_errors, link_factors
 from cooploc.experiment import ExperimentConfig, run_generators, run_sweep
-from cooploc.metrics import ecdf, rmse, wrap_angle
+from cooploc.geometry import wrap_angle
+from cooploc.metrics import ecdf, rmse
 from cooploc.plots import format_number
 from cooploc.reproduce import PaperExperiment, ReproduceOptions
 from cooploc.scenarios import get_preset

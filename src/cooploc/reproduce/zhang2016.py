@@ -30,11 +30,11 @@ from cooploc.experiment import (
     ExperimentResult,
     run_experiment,
     run_generators,
-    summarize,
 )
 from cooploc.metrics import VEHICLE, total_rmse
 from cooploc.plots import format_number
 from cooploc.reproduce import PaperExperiment, ReproduceOptions
+from cooploc.results import summarize
 from cooploc.scenarios import get_preset
 
 __all__ = ["AXES_LABEL", "AXES_UKF_LABEL", "COMPARED", "EXPERIMENT", "SCENARIOS", "paired_difference"]

@@ -67,11 +67,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from cooploc.motion import RandomWalk
-from cooploc.params import Params, require
-from cooploc.scenarios import Preset
+from cooploc.params import Params, param
+from cooploc.registry import Preset, register_scenario
 from cooploc.sensors import AngleOfArrival, GnssPosition
 from cooploc.types import Frame, Recording, Setup, StateLayout, StateSet, Truth
 
@@ -106,50 +105,29 @@ class AoaGridParams(Params):
         random-walk prediction model given to estimators (tracking).
     """
 
-    n_vehicles: int = 51
-    n_anchors: int = 6
-    grid_size: float = 50.0
-    block_size: float = 50.0
-    lanes: int = 3
-    lane_width: float = 3.5
-    communication_radius: float = 30.0
-    aoa_variance: float = 0.10
-    field_of_view: float = np.pi / 3
-    prior_position_std: float = 5.0
-    prior_heading_std: float = 0.35
-    anchor_position_std: float = 0.1
-    anchor_heading_std: float = 0.01
-    n_steps: int = 1
-    dt: float = 0.1
-    speed_min: float = 1.0
-    speed_max: float = 5.0
-    motion_position_density: float = 2.5
-    motion_heading_density: float = 0.01
-
-    @classmethod
-    def owner(cls) -> str:
-        return "aoa-grid"
+    n_vehicles: int = param(51, ge=1)
+    n_anchors: int = param(6, ge=0)
+    grid_size: float = param(50.0, gt=0)
+    block_size: float = param(50.0, gt=0)
+    lanes: int = param(3, ge=1)
+    lane_width: float = param(3.5, ge=0)
+    communication_radius: float = param(30.0, gt=0)
+    aoa_variance: float = param(0.10, gt=0)
+    field_of_view: float = param(np.pi / 3, gt=0, le=np.pi / 2, must="lie in (0, π/2] rad")
+    prior_position_std: float = param(5.0, gt=0)
+    prior_heading_std: float = param(0.35, gt=0)
+    anchor_position_std: float = param(0.1, gt=0)
+    anchor_heading_std: float = param(0.01, gt=0)
+    n_steps: int = param(1, ge=1)
+    dt: float = param(0.1, gt=0)
+    speed_min: float = param(1.0, ge=0)
+    speed_max: float = param(5.0, finite=True)
+    motion_position_density: float = param(2.5, ge=0)
+    motion_heading_density: float = param(0.01, ge=0)
 
     def validate(self) -> None:
-        o = self.owner()
-        require(self.n_vehicles >= 1, o, "n_vehicles", self.n_vehicles, "be >= 1")
-        require(self.n_anchors >= 0, o, "n_anchors", self.n_anchors, "be >= 0")
-        require(self.n_steps >= 1, o, "n_steps", self.n_steps, "be >= 1")
-        for key in ("grid_size", "block_size", "communication_radius", "aoa_variance",
-                    "prior_position_std", "prior_heading_std", "anchor_position_std",
-                    "anchor_heading_std", "dt"):
-            value = getattr(self, key)
-            require(np.isfinite(value) and value > 0, o, key, value, "be > 0")
-        require(self.block_size <= self.grid_size, o, "block_size", self.block_size,
-                f"be <= grid_size = {self.grid_size}")
-        require(0 < self.field_of_view <= np.pi / 2, o, "field_of_view", self.field_of_view,
-                "lie in (0, π/2] rad")
-        require(self.lanes >= 1, o, "lanes", self.lanes, "be >= 1")
-        for key in ("lane_width", "speed_min", "motion_position_density", "motion_heading_density"):
-            value = getattr(self, key)
-            require(np.isfinite(value) and value >= 0, o, key, value, "be >= 0")
-        require(np.isfinite(self.speed_max) and self.speed_max >= self.speed_min, o, "speed_max",
-                self.speed_max, f"be >= speed_min = {self.speed_min}")
+        self.require(self.block_size <= self.grid_size, "block_size", f"be <= grid_size = {self.grid_size}")
+        self.require(self.speed_max >= self.speed_min, "speed_max", f"be >= speed_min = {self.speed_min}")
 
 
 def anchor_ids(params: AoaGridParams) -> np.ndarray:
@@ -179,6 +157,8 @@ def place_vehicles(params: AoaGridParams, rng: np.random.Generator) -> np.ndarra
 
 def _links(positions: np.ndarray, ids: np.ndarray, radius: float) -> np.ndarray:
     """(E, 2) id pairs within `radius` (k-d tree, O(n log n))."""
+    from scipy.spatial import cKDTree
+
     pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
     return ids[pairs.reshape(-1, 2)]
 
@@ -236,11 +216,10 @@ def generate(params: AoaGridParams, rng: np.random.Generator) -> Recording:
     return Recording(setup, frames, truth)
 
 
-PRESETS = (
+PRESETS = register_scenario("aoa-grid", generate, [
     Preset(
         name="aoa-grid",
         params=AoaGridParams(),
-        generator=generate,
         summary="AoA-only snapshot: 51 vehicles (6 anchors) on a Manhattan grid, R_c = 30 m",
         doc="Reproduces Figs. 4–6 of 'Cooperative Localization with Angular Measurements and "
             "Posterior Linearization' (Table I parameters; grid and field of view chosen).",
@@ -248,8 +227,7 @@ PRESETS = (
     Preset(
         name="aoa-grid-tracking",
         params=AoaGridParams(n_steps=20),
-        generator=generate,
         summary="aoa-grid over 20 steps of 0.1 s: each prior is the predicted previous posterior",
         doc="Beyond the paper: the aoa-grid scenario with moving vehicles and a fix per step.",
     ),
-)
+])

@@ -61,8 +61,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cooploc.motion import CVAccelerationInput, CVVelocityNoise, simulate
-from cooploc.params import Params, require
-from cooploc.scenarios import Preset
+from cooploc.params import Params, param
+from cooploc.registry import Preset, register_scenario
 from cooploc.sensors import GnssPosition, RelativePosition
 from cooploc.types import Frame, Recording, Setup, StateLayout, StateSet, Truth
 
@@ -100,60 +100,35 @@ class BrambillaParams(Params):
         (not in the paper: 1, 0), clutter uniform in a box of this half-width (m).
     """
 
-    geometry: str = "crossroad"
-    n_vehicles: int = 12
-    cluster_size: int = 3
-    n_features: int = 20
-    n_steps: int = 32
-    dt: float = 1.0
-    speed: float = 50.0 * KMH
-    sigma_accel_along: float = 0.35
-    sigma_accel_cross: float = 0.001
-    gnss_position_std: float = 9.0
-    gnss_velocity_std: float = 0.25
-    v2f_position_std: float = 0.1
-    v2f_velocity_std: float = 0.1
-    communication_range: float = 250.0
-    sensing_range: float = 75.0
-    feature_spacing: float = 3.0
-    feature_speed: float = 0.0
-    feature_radius: float = 150.0
-    headway: float = 5.0
-    cluster_headway: float = 20.0
-    road_start: float = 40.0
-    start_distance: float = 210.0
-    lane_offset: float = 1.75
-    sidewalk_offset: float = 8.0
-    start_position_std: float = 1.0
-    start_speed_std: float = 0.5
-    detection_probability: float = 1.0
-    clutter_rate: float = 0.0
-    clutter_extent: float = 75.0
-
-    @classmethod
-    def owner(cls) -> str:
-        return "brambilla2020"
-
-    def validate(self) -> None:
-        o = self.owner()
-        require(self.geometry in ("road", "crossroad"), o, "geometry", self.geometry,
-                "be 'road' or 'crossroad'")
-        require(self.n_vehicles >= 1, o, "n_vehicles", self.n_vehicles, "be >= 1")
-        require(self.cluster_size >= 1, o, "cluster_size", self.cluster_size, "be >= 1")
-        require(self.n_features >= 0, o, "n_features", self.n_features, "be >= 0")
-        require(self.n_steps >= 1, o, "n_steps", self.n_steps, "be >= 1")
-        for key in ("dt", "speed", "gnss_position_std", "gnss_velocity_std", "v2f_position_std",
-                    "v2f_velocity_std", "communication_range", "sensing_range", "feature_radius",
-                    "start_position_std", "start_speed_std", "clutter_extent", "cluster_headway",
-                    "headway"):
-            value = getattr(self, key)
-            require(np.isfinite(value) and value > 0, o, key, value, "be > 0")
-        for key in ("sigma_accel_along", "sigma_accel_cross", "feature_spacing", "feature_speed",
-                    "road_start", "start_distance", "lane_offset", "sidewalk_offset", "clutter_rate"):
-            value = getattr(self, key)
-            require(np.isfinite(value) and value >= 0, o, key, value, "be >= 0")
-        require(0 < self.detection_probability <= 1, o, "detection_probability",
-                self.detection_probability, "lie in (0, 1]")
+    geometry: str = param("crossroad", choices=("road", "crossroad"))
+    n_vehicles: int = param(12, ge=1)
+    cluster_size: int = param(3, ge=1)
+    n_features: int = param(20, ge=0)
+    n_steps: int = param(32, ge=1)
+    dt: float = param(1.0, gt=0)
+    speed: float = param(50.0 * KMH, gt=0)
+    sigma_accel_along: float = param(0.35, ge=0)
+    sigma_accel_cross: float = param(0.001, ge=0)
+    gnss_position_std: float = param(9.0, gt=0)
+    gnss_velocity_std: float = param(0.25, gt=0)
+    v2f_position_std: float = param(0.1, gt=0)
+    v2f_velocity_std: float = param(0.1, gt=0)
+    communication_range: float = param(250.0, gt=0)
+    sensing_range: float = param(75.0, gt=0)
+    feature_spacing: float = param(3.0, ge=0)
+    feature_speed: float = param(0.0, ge=0)
+    feature_radius: float = param(150.0, gt=0)
+    headway: float = param(5.0, gt=0)
+    cluster_headway: float = param(20.0, gt=0)
+    road_start: float = param(40.0, ge=0)
+    start_distance: float = param(210.0, ge=0)
+    lane_offset: float = param(1.75, ge=0)
+    sidewalk_offset: float = param(8.0, ge=0)
+    start_position_std: float = param(1.0, gt=0)
+    start_speed_std: float = param(0.5, gt=0)
+    detection_probability: float = param(1.0, gt=0, le=1)
+    clutter_rate: float = param(0.0, ge=0)
+    clutter_extent: float = param(75.0, gt=0)
 
 
 def v2v_links(ids: np.ndarray, positions: np.ndarray, communication_range: float) -> np.ndarray:
@@ -278,19 +253,17 @@ ROAD = BrambillaParams(
     sidewalk_offset=5.0, clutter_extent=30.0,
 )
 
-PRESETS = (
+PRESETS = register_scenario("brambilla2020", generate, [
     Preset(
         name="brambilla-road",
         params=ROAD,
-        generator=generate,
         summary="Brambilla 2020 §V-A: 2 vehicles at 25 km/h, 2 static sidewalk features d_f apart",
         doc="Reproduces Fig. 7 of Brambilla et al. (T-ITS 2020) with feature_spacing 0.5, 3, 6 m.",
     ),
     Preset(
         name="brambilla-crossroad",
         params=BrambillaParams(),
-        generator=generate,
         summary="Brambilla 2020 §V-B: 12 vehicles in 4 clusters at a junction, N_f sidewalk features",
         doc="Reproduces Figs. 8–11 of Brambilla et al. (T-ITS 2020): n_features, feature_speed.",
     ),
-)
+])

@@ -48,8 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cooploc.motion import ConstantVelocity, simulate, simulate_backward
-from cooploc.params import Params, require
-from cooploc.scenarios import Preset
+from cooploc.params import Params, param
+from cooploc.registry import Preset, register_scenario
 from cooploc.sensors import GnssPosition, RelativePosition
 from cooploc.types import Frame, Recording, Setup, StateLayout, StateSet, Truth
 
@@ -80,47 +80,25 @@ class FroehleParams(Params):
     shuffle : shuffle each vehicle's V2F rows every step (paper: yes).
     """
 
-    n_vehicles: int = 2
-    n_features: int = 3
-    n_steps: int = 501
-    dt: float = 0.5
-    noise_density: float = 0.1
-    gnss_variances: tuple[float, ...] = (0.01, 15.0)
-    v2f_variance: float = 1.0
-    feature_init_variance: float = 0.25
-    vehicle_position_std: float = 10.0
-    vehicle_velocity_std: float = 1.0
-    detection_probability: float = 1.0
-    clutter_rate: float = 0.0
-    clutter_extent: float = 50.0
+    n_vehicles: int = param(2, ge=1)
+    n_features: int = param(3, ge=0)
+    n_steps: int = param(501, ge=1)
+    dt: float = param(0.5, gt=0)
+    noise_density: float = param(0.1, gt=0)
+    gnss_variances: tuple[float, ...] = param((0.01, 15.0), gt=0, must="be positive")
+    v2f_variance: float = param(1.0, gt=0)
+    feature_init_variance: float = param(0.25, gt=0)
+    vehicle_position_std: float = param(10.0, gt=0)
+    vehicle_velocity_std: float = param(1.0, gt=0)
+    detection_probability: float = param(1.0, gt=0, le=1)
+    clutter_rate: float = param(0.0, ge=0)
+    clutter_extent: float = param(50.0, gt=0)
     shuffle: bool = True
 
-    @classmethod
-    def owner(cls) -> str:
-        return "froehle2018"
-
     def validate(self) -> None:
-        o = self.owner()
-        require(self.n_vehicles >= 1, o, "n_vehicles", self.n_vehicles, "be >= 1")
-        require(self.n_features >= 0, o, "n_features", self.n_features, "be >= 0")
-        require(self.n_steps >= 1, o, "n_steps", self.n_steps, "be >= 1")
-        require(np.isfinite(self.dt) and self.dt > 0, o, "dt", self.dt, "be > 0")
-        require(np.isfinite(self.noise_density) and self.noise_density > 0, o,
-                "noise_density", self.noise_density, "be > 0")
-        require(len(self.gnss_variances) >= 1, o, "gnss_variances", self.gnss_variances,
-                "have at least one entry")
-        require(len(self.gnss_variances) <= self.n_vehicles, o, "gnss_variances",
-                self.gnss_variances, f"have at most n_vehicles = {self.n_vehicles} entries")
-        require(all(np.isfinite(v) and v > 0 for v in self.gnss_variances), o,
-                "gnss_variances", self.gnss_variances, "be positive")
-        for key in ("v2f_variance", "feature_init_variance", "vehicle_position_std",
-                    "vehicle_velocity_std", "clutter_extent"):
-            value = getattr(self, key)
-            require(np.isfinite(value) and value > 0, o, key, value, "be > 0")
-        require(0 < self.detection_probability <= 1, o, "detection_probability",
-                self.detection_probability, "lie in (0, 1]")
-        require(np.isfinite(self.clutter_rate) and self.clutter_rate >= 0, o, "clutter_rate",
-                self.clutter_rate, "be >= 0")
+        self.require(len(self.gnss_variances) >= 1, "gnss_variances", "have at least one entry")
+        self.require(len(self.gnss_variances) <= self.n_vehicles, "gnss_variances",
+                     f"have at most n_vehicles = {self.n_vehicles} entries")
 
     def gnss_variance_of(self, vehicle: int) -> float:
         return self.gnss_variances[min(vehicle, len(self.gnss_variances) - 1)]
@@ -203,12 +181,11 @@ def generate(params: FroehleParams, rng: np.random.Generator) -> Recording:
     return Recording(setup, frames, truth)
 
 
-PRESETS = (
+PRESETS = register_scenario("froehle2018", generate, [
     Preset(
         name="froehle2018",
         params=FroehleParams(),
-        generator=generate,
         summary="Fröhle 2018 §V-A: 2 vehicles (GNSS 0.01/15 m²), 3 crossing features, V2F 1 m²",
         doc="Reproduces Figs. 3–5 of Fröhle, Lindberg & Wymeersch (WCNC 2018).",
     ),
-)
+])

@@ -40,8 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cooploc.motion import ConstantVelocity, simulate
-from cooploc.params import Params, require
-from cooploc.scenarios import Preset
+from cooploc.params import Params, param
+from cooploc.registry import Preset, register_scenario
 from cooploc.sensors import GnssPosition, InfrastructureRadar, Odometry
 from cooploc.types import Batch, Frame, Recording, Setup, StateLayout, StateSet, Truth
 
@@ -69,38 +69,19 @@ class GulatiParams(Params):
     clutter_extent : half-width in m of the clutter square (radar frame).
     """
 
-    n_vehicles: int = 2
-    n_steps: int = 250
-    dt: float = 1.0
-    gnss_variance: float = 9.0
-    odometry_variance: float = 1.0
-    radar_variance: float = 0.1
-    noise_density: float = 1.0
-    start_position_std: float = 50.0
-    start_velocity_std: float = 5.0
-    radar_extent: float = 100.0
-    detection_probability: float = 1.0
-    clutter_rate: float = 0.0
-    clutter_extent: float = 200.0
-
-    @classmethod
-    def owner(cls) -> str:
-        return "gulati"
-
-    def validate(self) -> None:
-        o = self.owner()
-        require(self.n_vehicles >= 1, o, "n_vehicles", self.n_vehicles, "be >= 1")
-        require(self.n_steps >= 1, o, "n_steps", self.n_steps, "be >= 1")
-        for key in ("dt", "gnss_variance", "odometry_variance", "radar_variance",
-                    "start_position_std", "start_velocity_std", "radar_extent", "clutter_extent"):
-            value = getattr(self, key)
-            require(np.isfinite(value) and value > 0, o, key, value, "be > 0")
-        require(np.isfinite(self.noise_density) and self.noise_density >= 0, o, "noise_density",
-                self.noise_density, "be >= 0")
-        require(0 < self.detection_probability <= 1, o, "detection_probability",
-                self.detection_probability, "lie in (0, 1]")
-        require(np.isfinite(self.clutter_rate) and self.clutter_rate >= 0, o, "clutter_rate",
-                self.clutter_rate, "be >= 0")
+    n_vehicles: int = param(2, ge=1)
+    n_steps: int = param(250, ge=1)
+    dt: float = param(1.0, gt=0)
+    gnss_variance: float = param(9.0, gt=0)
+    odometry_variance: float = param(1.0, gt=0)
+    radar_variance: float = param(0.1, gt=0)
+    noise_density: float = param(1.0, ge=0)
+    start_position_std: float = param(50.0, gt=0)
+    start_velocity_std: float = param(5.0, gt=0)
+    radar_extent: float = param(100.0, gt=0)
+    detection_probability: float = param(1.0, gt=0, le=1)
+    clutter_rate: float = param(0.0, ge=0)
+    clutter_extent: float = param(200.0, gt=0)
 
 
 def generate(params: GulatiParams, rng: np.random.Generator) -> Recording:
@@ -156,11 +137,10 @@ def generate(params: GulatiParams, rng: np.random.Generator) -> Recording:
     return Recording(setup, frames, truth)
 
 
-PRESETS = tuple(
+PRESETS = register_scenario("gulati", generate, [
     Preset(
         name=f"gulati-{n}v",
         params=GulatiParams(n_vehicles=n),
-        generator=generate,
         summary=f"Gulati 2017 §IV-A: {n} vehicles, GPS 9 m², odometry 1 m², radar 0.1 m² "
                 "(unknown pose), 250 steps",
         doc=f"Reproduces the {n}-vehicle row of Tables I–II"
@@ -168,4 +148,4 @@ PRESETS = tuple(
             + " of Gulati et al. (IV 2017).",
     )
     for n in (2, 3, 4)
-)
+])

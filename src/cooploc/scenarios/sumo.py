@@ -98,8 +98,8 @@ import numpy as np
 
 from cooploc.errors import CooplocError
 from cooploc.motion import ConstantVelocity
-from cooploc.params import Params, require
-from cooploc.scenarios import Preset
+from cooploc.params import Params, param
+from cooploc.registry import Preset, register_scenario
 from cooploc.sensors import GnssPosition, RelativePosition
 from cooploc.types import (
     Batch,
@@ -144,6 +144,7 @@ ZONES = ("A", "B", "C")
 STATIC_FEATURE_ID_OFFSET = 1_000_000
 PEDESTRIAN_ID_OFFSET = 2_000_000
 CACHE_FORMAT = 3  # bump when the cached arrays change meaning
+_THREE_ZONES = "be three positive numbers (zones A, B, C)"
 _KERB_OFFSET = 1.5  # m beyond the right edge of the rightmost lane: signal heads, poles
 
 
@@ -215,70 +216,44 @@ class SumoParams(Params):
     birth_position_std, birth_velocity_std : `Setup.birth_cov` of entering vehicles.
     """
 
-    network: str = GRID
-    regulation: str = "tlr"
-    grid_size: int = 3
-    grid_length: float = 100.0
-    area_half_width: float = 500.0
-    duration: float = 300.0
-    warmup: float = 120.0
-    dt: float = 0.75
-    vehicle_period: float = 2.0
-    pedestrian_period: float = 10.0
-    fringe_factor: float = 10.0
-    traffic_seed: int = -1
-    pole_spacing: float = 60.0
-    min_feature_spacing: float = 20.0
-    max_static_features: int = 64
-    zone_radii: tuple[float, float] = (150.0, 300.0)
-    gnss_position_std: tuple[float, float, float] = (3.0, 8.0, 15.0)
-    gnss_velocity_std: tuple[float, float, float] = (0.1, 0.17, 0.45)
-    v2f_position_std: float = 0.1
-    v2f_velocity_std: float = 0.1
-    sensing_range: float = 50.0
-    communication_range: float = 250.0
-    detection_probability: float = 1.0
-    clutter_rate: float = 0.0
-    vehicle_noise_density: float = 2.0
-    feature_noise_density: float = 0.05
-    prior_position_std: float = 2.0
-    prior_velocity_std: float = 0.1
-    birth_position_std: float = 100.0
-    birth_velocity_std: float = 10.0
-
-    @classmethod
-    def owner(cls) -> str:
-        return "sumo"
+    network: str = param(GRID, choices=(GRID, *NETWORKS))
+    regulation: str = param("tlr", choices=REGULATIONS)
+    grid_size: int = param(3, ge=2)
+    grid_length: float = param(100.0, gt=0)
+    area_half_width: float = param(500.0, gt=0)
+    duration: float = param(300.0, gt=0)
+    warmup: float = param(120.0, ge=0)
+    dt: float = param(0.75, gt=0)
+    vehicle_period: float = param(2.0, gt=0)
+    pedestrian_period: float = param(10.0, ge=0)
+    fringe_factor: float = param(10.0, gt=0)
+    traffic_seed: int = param(-1, ge=-1)
+    pole_spacing: float = param(60.0, gt=0)
+    min_feature_spacing: float = param(20.0, gt=0)
+    max_static_features: int = param(64, ge=0)
+    zone_radii: tuple[float, float] = param((150.0, 300.0), length=2, gt=0,
+                                            must="be (r_C, r_B) with 0 < r_C <= r_B")
+    gnss_position_std: tuple[float, float, float] = param((3.0, 8.0, 15.0), length=3, gt=0,
+                                                          must=_THREE_ZONES)
+    gnss_velocity_std: tuple[float, float, float] = param((0.1, 0.17, 0.45), length=3, gt=0,
+                                                          must=_THREE_ZONES)
+    v2f_position_std: float = param(0.1, gt=0)
+    v2f_velocity_std: float = param(0.1, gt=0)
+    sensing_range: float = param(50.0, gt=0)
+    communication_range: float = param(250.0, gt=0)
+    detection_probability: float = param(1.0, gt=0, le=1)
+    clutter_rate: float = param(0.0, ge=0)
+    vehicle_noise_density: float = param(2.0, gt=0)
+    feature_noise_density: float = param(0.05, gt=0)
+    prior_position_std: float = param(2.0, gt=0)
+    prior_velocity_std: float = param(0.1, gt=0)
+    birth_position_std: float = param(100.0, gt=0)
+    birth_velocity_std: float = param(10.0, gt=0)
 
     def validate(self) -> None:
-        o = self.owner()
-        known = (GRID, *NETWORKS)
-        require(self.network in known, o, "network", self.network, f"be one of {known}")
-        require(self.regulation in REGULATIONS, o, "regulation", self.regulation,
-                f"be one of {REGULATIONS}")
-        require(self.grid_size >= 2, o, "grid_size", self.grid_size, "be >= 2")
-        require(self.traffic_seed >= -1, o, "traffic_seed", self.traffic_seed, "be >= -1")
-        require(self.max_static_features >= 0, o, "max_static_features",
-                self.max_static_features, "be >= 0")
-        for key in ("grid_length", "area_half_width", "duration", "dt", "vehicle_period",
-                    "fringe_factor", "pole_spacing", "min_feature_spacing", "v2f_position_std",
-                    "v2f_velocity_std", "sensing_range", "communication_range",
-                    "vehicle_noise_density", "feature_noise_density", "prior_position_std",
-                    "prior_velocity_std", "birth_position_std", "birth_velocity_std"):
-            value = getattr(self, key)
-            require(bool(np.isfinite(value)) and value > 0, o, key, value, "be > 0")
-        for key in ("warmup", "pedestrian_period", "clutter_rate"):
-            value = getattr(self, key)
-            require(bool(np.isfinite(value)) and value >= 0, o, key, value, "be >= 0")
-        require(self.duration >= self.dt, o, "duration", self.duration, f"be >= dt = {self.dt}")
-        require(len(self.zone_radii) == 2 and 0 < self.zone_radii[0] <= self.zone_radii[1], o,
-                "zone_radii", self.zone_radii, "be (r_C, r_B) with 0 < r_C <= r_B")
-        for key in ("gnss_position_std", "gnss_velocity_std"):
-            value = getattr(self, key)
-            require(len(value) == 3 and all(np.isfinite(v) and v > 0 for v in value), o, key,
-                    value, "be three positive numbers (zones A, B, C)")
-        require(0 < self.detection_probability <= 1, o, "detection_probability",
-                self.detection_probability, "lie in (0, 1]")
+        self.require(self.duration >= self.dt, "duration", f"be >= dt = {self.dt}")
+        self.require(self.zone_radii[0] <= self.zone_radii[1], "zone_radii",
+                     "be (r_C, r_B) with 0 < r_C <= r_B")
 
     @property
     def n_steps(self) -> int:
@@ -759,7 +734,6 @@ def _preset(network: str, regulation: str, **overrides: Any) -> Preset:
     return Preset(
         name=f"sumo-{network}-{regulation}",
         params=SumoParams(network=network, regulation=regulation, **overrides),
-        generator=generate,
         summary=f"SUMO urban traffic, {label}, {lights}; GNSS zones A/B/C, V2F R_s = 50 m",
         doc=("Analogue of Brambilla et al. 2020 §VI (Figs. 16–17) on a SUMO network; see "
              "cooploc.scenarios.sumo for what differs from the paper's Turin arterial."),
@@ -772,7 +746,7 @@ TINY_GRID: dict[str, Any] = {"network": GRID, "grid_size": 2, "grid_length": 80.
                              "warmup": 30.0, "vehicle_period": 3.0, "pedestrian_period": 5.0,
                              "max_static_features": 6, "zone_radii": (45.0, 52.0)}
 
-PRESETS = (
+PRESETS = register_scenario("sumo", generate, [
     _preset("braunschweig", "tlr"),
     _preset("braunschweig", "vsr"),
     _preset("berlin", "tlr"),
@@ -780,4 +754,4 @@ PRESETS = (
     # tests and quick checks: a 3 × 3 grid of 100 m blocks, 60 s
     _preset(GRID, "tlr", duration=60.0, warmup=60.0, zone_radii=(40.0, 90.0)),
     _preset(GRID, "vsr", duration=60.0, warmup=60.0, zone_radii=(40.0, 90.0)),
-)
+])

@@ -64,8 +64,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cooploc.motion import ConstantTurn, ConstantVelocity
-from cooploc.params import Params, require
-from cooploc.scenarios import Preset
+from cooploc.params import Params, param
+from cooploc.registry import Preset, register_scenario
 from cooploc.sensors import AnonymousPosition, InfrastructureRadar
 from cooploc.types import Frame, Recording, Setup, StateLayout, StateSet, Truth
 
@@ -111,44 +111,24 @@ class ZhangParams(Params):
     radar_clutter_extent : half-width (m) of the radar-frame clutter box.
     """
 
-    n_vehicles: int = 5
-    n_steps: int = 100
-    dt: float = 1.0
-    process_noise_std: float = 0.5
-    truth_noise_std: float = 0.0
-    turn_rates: tuple[float, ...] = ()
-    gnss_variance: float = 0.5
-    radar_variance: float = 0.1
-    prior_position_variance: float = 2.5
-    prior_velocity_variance: float = 1.0
-    radar_extent: float = 100.0
-    detection_probability: float = 1.0
-    clutter_rate: float = 0.0
-    radar_clutter_extent: float = 300.0
-
-    @classmethod
-    def owner(cls) -> str:
-        return "zhang2016"
+    n_vehicles: int = param(5, ge=1, le=5)
+    n_steps: int = param(100, ge=1)
+    dt: float = param(1.0, gt=0)
+    process_noise_std: float = param(0.5, gt=0)
+    truth_noise_std: float = param(0.0, ge=0)
+    turn_rates: tuple[float, ...] = param((), finite=True)
+    gnss_variance: float = param(0.5, gt=0)
+    radar_variance: float = param(0.1, gt=0)
+    prior_position_variance: float = param(2.5, gt=0)
+    prior_velocity_variance: float = param(1.0, gt=0)
+    radar_extent: float = param(100.0, gt=0)
+    detection_probability: float = param(1.0, gt=0, le=1)
+    clutter_rate: float = param(0.0, ge=0)
+    radar_clutter_extent: float = param(300.0, gt=0)
 
     def validate(self) -> None:
-        o = self.owner()
-        require(1 <= self.n_vehicles <= 5, o, "n_vehicles", self.n_vehicles, "lie in 1..5")
-        require(self.n_steps >= 1, o, "n_steps", self.n_steps, "be >= 1")
-        require(len(self.turn_rates) <= self.n_vehicles, o, "turn_rates", self.turn_rates,
-                f"have at most n_vehicles = {self.n_vehicles} entries")
-        require(all(np.isfinite(w) for w in self.turn_rates), o, "turn_rates", self.turn_rates,
-                "be finite")
-        for key in ("dt", "process_noise_std", "gnss_variance", "radar_variance",
-                    "prior_position_variance", "prior_velocity_variance", "radar_extent",
-                    "radar_clutter_extent"):
-            value = getattr(self, key)
-            require(np.isfinite(value) and value > 0, o, key, value, "be > 0")
-        require(np.isfinite(self.truth_noise_std) and self.truth_noise_std >= 0, o,
-                "truth_noise_std", self.truth_noise_std, "be >= 0")
-        require(0 < self.detection_probability <= 1, o, "detection_probability",
-                self.detection_probability, "lie in (0, 1]")
-        require(np.isfinite(self.clutter_rate) and self.clutter_rate >= 0, o, "clutter_rate",
-                self.clutter_rate, "be >= 0")
+        self.require(len(self.turn_rates) <= self.n_vehicles, "turn_rates",
+                     f"have at most n_vehicles = {self.n_vehicles} entries")
 
     def turn_rate_of(self, vehicle: int) -> float:
         return self.turn_rates[vehicle] if vehicle < len(self.turn_rates) else 0.0
@@ -215,11 +195,11 @@ _OMEGA = 0.05  # rad/s, §4.1 "ω = ±0.05°" read as radians per step (module d
 _DOC = ("Reproduces Figs. 2–3 of Zhang et al. (GeoInformatica 2016): five vehicles, anonymous "
         "GPS diag(0.5, 0.5) m², a radar of unknown pose diag(0.1, 0.1) m², 100 steps of 1 s.")
 
-PRESETS = (
-    Preset("zhang2016-cv", ZhangParams(), generate,
+PRESETS = register_scenario("zhang2016", generate, [
+    Preset("zhang2016-cv", ZhangParams(),
            "Zhang 2016 §4.1 CV: 5 vehicles, anonymous GPS + radar of unknown pose", _DOC),
-    Preset("zhang2016-ct2", ZhangParams(turn_rates=(_OMEGA, 0.0, 0.0, 0.0, -_OMEGA)), generate,
+    Preset("zhang2016-ct2", ZhangParams(turn_rates=(_OMEGA, 0.0, 0.0, 0.0, -_OMEGA)),
            "Zhang 2016 §4.1 CT-2: vehicles 1 and 5 turn at ±0.05 rad/s", _DOC),
     Preset("zhang2016-ct4", ZhangParams(turn_rates=(_OMEGA, -_OMEGA, 0.0, _OMEGA, -_OMEGA)),
-           generate, "Zhang 2016 §4.1 CT-4: vehicles 1, 2, 4, 5 turn at ±0.05 rad/s", _DOC),
-)
+           "Zhang 2016 §4.1 CT-4: vehicles 1, 2, 4, 5 turn at ±0.05 rad/s", _DOC),
+])

@@ -1,0 +1,266 @@
+"""The two registries (DESIGN §4–5): estimators by name, scenarios by preset name.
+
+An estimator is a class with `name`, `summary`, `Params`, `needs_truth`,
+`default_preset` (and optionally `required_sensors`) and `step(frame) -> Estimate`; it
+joins the registry through `register_estimator`, usable as a class decorator:
+
+    @register_estimator
+    class MyKF:
+        name = "my-kf"
+        ...
+
+A scenario family is a `generate(params, rng) -> Recording` with one or more named
+`Preset`s of its `Params`; it joins through `register_scenario(family, generate,
+presets)`. Registration also gives the Params class its owner for error messages
+(`cooploc.params`): the estimator's name, or the scenario family's.
+
+Where registrations come from, in order, the first time a registry is read:
+
+1. cooploc's own modules (`BUILTIN_ESTIMATORS`, `BUILTIN_SCENARIOS`), imported here
+   by name so that `import cooploc` stays light;
+2. the entry points of installed packages in the groups ``cooploc.estimators`` and
+   ``cooploc.scenarios``: each is loaded (its module imported, which may register
+   what it holds), and an estimator class it names is registered;
+3. anything registered at run time by calling `register_estimator` /
+   `register_scenario` (a plug-in module imported by the user).
+
+A plug-in that fails to load is reported with a `PluginWarning` and left out, so that
+one broken package does not take `cooploc` down with it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import warnings
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+import numpy as np
+
+from cooploc.errors import ConfigError
+from cooploc.params import Params, claim
+from cooploc.types import AssociationTruth, Recording, Setup, Truth
+
+__all__ = [
+    "ESTIMATOR_GROUP",
+    "SCENARIO_GROUP",
+    "PluginWarning",
+    "Preset",
+    "estimators",
+    "get_estimator",
+    "get_preset",
+    "make_estimator",
+    "presets",
+    "register_estimator",
+    "register_scenario",
+]
+
+ESTIMATOR_GROUP = "cooploc.estimators"
+SCENARIO_GROUP = "cooploc.scenarios"
+
+BUILTIN_ESTIMATORS = (
+    "cooploc.estimators.gnss_kf",
+    "cooploc.estimators.oracle_kf",
+    "cooploc.estimators.rsu_bp",
+    "cooploc.estimators.icp",
+    "cooploc.estimators.kf_known_da",
+    "cooploc.estimators.sme",
+    "cooploc.estimators.gm_phd",
+    "cooploc.estimators.factor_graph",
+    "cooploc.estimators.plbp",
+)
+BUILTIN_SCENARIOS = (
+    "cooploc.scenarios.froehle2018",
+    "cooploc.scenarios.brambilla2020",
+    "cooploc.scenarios.zhang2016",
+    "cooploc.scenarios.gulati",
+    "cooploc.scenarios.aoa_grid",
+    "cooploc.scenarios.sumo",
+)
+
+#: what an estimator class must declare (DESIGN §4; `required_sensors` is optional)
+ESTIMATOR_ATTRIBUTES = ("name", "summary", "Params", "needs_truth", "default_preset", "step")
+
+E = TypeVar("E", bound=type)
+
+
+class PluginWarning(UserWarning):
+    """An installed plug-in could not be loaded or registered; it is left out."""
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named scenario: a family's parameters that reproduce a paper's setting.
+
+    Attributes
+    ----------
+    name : what `cooploc run NAME` takes.
+    params : the family's `Params` with this preset's values.
+    summary : one line for `cooploc list`.
+    doc : which figure or table it reproduces, and what the paper left unstated.
+    family : the registered family (set by `register_scenario`).
+    generator : the family's `generate(params, rng)` (set by `register_scenario`).
+    """
+
+    name: str
+    params: Params
+    summary: str
+    doc: str = ""
+    family: str = ""
+    generator: Callable[[Any, np.random.Generator], Recording] | None = None
+
+    def generate(self, rng: np.random.Generator, params: Params | None = None) -> Recording:
+        """Simulate one run with `params` (default: the preset's own)."""
+        if self.generator is None:
+            raise ConfigError(f"preset {self.name!r} is not registered (see cooploc.register_scenario)")
+        return self.generator(self.params if params is None else params, rng)
+
+
+_estimators: dict[str, type] = {}
+_presets: dict[str, Preset] = {}
+_loaded = False
+
+
+def _qualified(obj: Any) -> str:
+    return f"{getattr(obj, '__module__', '?')}.{getattr(obj, '__qualname__', repr(obj))}"
+
+
+def register_estimator(cls: E) -> E:
+    """Add estimator class `cls` under `cls.name` (a class decorator; returns `cls`).
+
+    Checks that it declares the interface of DESIGN §4 and that no other class holds
+    the name; registering the same class again is a no-op. `cls.Params` takes the
+    name for its error messages.
+    """
+    missing = [a for a in ESTIMATOR_ATTRIBUTES if not hasattr(cls, a)]
+    if missing:
+        raise ConfigError(f"{_qualified(cls)} is not an estimator: it lacks {', '.join(missing)}")
+    name = cls.name
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"{_qualified(cls)}.name must be a non-empty string, got {name!r}")
+    if not (isinstance(cls.Params, type) and issubclass(cls.Params, Params)):
+        raise ConfigError(f"{name}: Params must be a subclass of cooploc.params.Params, got {cls.Params!r}")
+    if not isinstance(cls.needs_truth, bool):
+        raise ConfigError(f"{name}: needs_truth must be True or False, got {cls.needs_truth!r}")
+    if not callable(cls.step):
+        raise ConfigError(f"{name}: step must be a method step(frame) -> Estimate")
+    held = _estimators.get(name)
+    if held is not None and held is not cls and _qualified(held) != _qualified(cls):
+        raise ConfigError(f"estimator name {name!r} is registered already, by {_qualified(held)}")
+    _estimators[name] = cls
+    claim(cls.Params, name)
+    return cls
+
+
+def register_scenario(family: str, generate: Callable[[Any, np.random.Generator], Recording],
+                      presets: Iterable[Preset]) -> tuple[Preset, ...]:
+    """Add the presets of scenario family `family`, all generated by `generate`.
+
+    Every preset's params must be of one `Params` class, which takes the family name
+    for its error messages. Returns the registered presets (with `family` and
+    `generator` set); a preset name held by another family is an error.
+    """
+    registered = tuple(dataclasses.replace(p, family=family, generator=generate) for p in presets)
+    if not family or not registered:
+        raise ConfigError(f"scenario family {family!r} needs a name and at least one preset")
+    kinds = {type(p.params) for p in registered}
+    if len(kinds) != 1 or not issubclass(next(iter(kinds)), Params):
+        raise ConfigError(f"scenario family {family!r}: every preset's params must be of one Params "
+                          f"class, got {sorted(k.__name__ for k in kinds)}")
+    for preset in registered:
+        held = _presets.get(preset.name)
+        if held is not None and held.family != family:
+            raise ConfigError(f"scenario {preset.name!r} is registered already, by family {held.family!r}")
+    for preset in registered:
+        _presets[preset.name] = preset
+    claim(next(iter(kinds)), family)
+    return registered
+
+
+def _load() -> None:
+    """Import the built-in modules and the installed plug-ins, once."""
+    global _loaded
+    if _loaded:
+        return
+    _loaded = True  # first: the modules imported below call back into this registry
+    try:
+        for module in (*BUILTIN_ESTIMATORS, *BUILTIN_SCENARIOS):
+            importlib.import_module(module)
+    except BaseException:
+        _loaded = False
+        raise
+    from importlib.metadata import entry_points
+
+    for group in (ESTIMATOR_GROUP, SCENARIO_GROUP):
+        for entry in entry_points(group=group):
+            try:
+                obj = entry.load()
+                if group == ESTIMATOR_GROUP and isinstance(obj, type):
+                    register_estimator(obj)
+            except Exception as exc:  # a broken plug-in must not take cooploc down
+                warnings.warn(f"cooploc: the plug-in {entry.name!r} ({entry.value}) of group {group} "
+                              f"was left out: {type(exc).__name__}: {exc}", PluginWarning, stacklevel=2)
+
+
+def estimators() -> dict[str, type]:
+    """All registered estimator classes by name."""
+    _load()
+    return dict(_estimators)
+
+
+def get_estimator(name: str) -> type:
+    """The estimator class registered as `name`; `ConfigError` listing the known ones."""
+    _load()
+    if name not in _estimators:
+        raise ConfigError(f"unknown estimator {name!r}; known: {', '.join(sorted(_estimators))}")
+    return _estimators[name]
+
+
+def presets() -> dict[str, Preset]:
+    """All registered presets by name."""
+    _load()
+    return dict(_presets)
+
+
+def get_preset(name: str) -> Preset:
+    """The preset called `name`; `ConfigError` listing the known ones otherwise."""
+    _load()
+    if name not in _presets:
+        raise ConfigError(f"unknown scenario {name!r}; known: {', '.join(sorted(_presets))}")
+    return _presets[name]
+
+
+def make_estimator(
+    name: str,
+    setup: Setup,
+    params: Params | None,
+    rng: np.random.Generator,
+    truth: Truth | None = None,
+) -> Any:
+    """Construct estimator `name`; pass `truth` only to known-association references.
+
+    A reference (`needs_truth`) receives only the association part of the truth
+    (`AssociationTruth`); every other estimator receives none. A scenario without a
+    measurement kind the estimator requires is refused with a `ConfigError`.
+    """
+    return construct(get_estimator(name), setup, params, rng, truth)
+
+
+def construct(cls: type, setup: Setup, params: Params | None, rng: np.random.Generator,
+              truth: Truth | None = None) -> Any:
+    """`make_estimator` for a class (registered or not): the checks, then `cls(...)`."""
+    name = cls.name
+    missing = [kind for kind in getattr(cls, "required_sensors", ()) if kind not in setup.sensors]
+    if missing:
+        raise ConfigError(f"{name} needs the measurement kinds {', '.join(missing)}, which this scenario "
+                          f"does not have (it has: {', '.join(sorted(setup.sensors)) or 'none'})")
+    params = cls.Params() if params is None else params
+    if not isinstance(params, cls.Params):
+        raise ConfigError(f"{name}: params must be {cls.Params.__name__}, got {type(params).__name__}")
+    if cls.needs_truth:
+        if truth is None:
+            raise ConfigError(f"{name} is a known-association reference and needs the truth")
+        return cls(setup, params, rng, truth=AssociationTruth.of(truth))
+    return cls(setup, params, rng)
