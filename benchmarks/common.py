@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import os
 import platform
-import time
 import tracemalloc
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -31,6 +30,7 @@ import numpy as np
 
 from cooploc import __version__
 from cooploc.estimators import Estimator, make_estimator
+from cooploc.experiment import StepTimer, estimate
 from cooploc.params import Params
 from cooploc.scenarios import get_preset
 from cooploc.types import Estimate, Frame, Recording
@@ -89,12 +89,9 @@ def new_estimator(name: str, rec: Recording, params: Params | None = None, seed:
 
 def run_steps(est: Estimator, frames: Sequence[Frame]) -> tuple[float, list[Estimate]]:
     """Seconds spent inside `est.step` over `frames` (nothing else timed), and the estimates."""
-    spent, estimates = 0.0, []
-    for frame in frames:
-        start = time.perf_counter()
-        estimates.append(est.step(frame))
-        spent += time.perf_counter() - start
-    return spent, estimates
+    timer = StepTimer()
+    estimates = estimate(est, frames, smooth=False, timer=timer)
+    return timer.seconds, estimates
 
 
 def peak_memory(fn: Callable[[], object]) -> int:

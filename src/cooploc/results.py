@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from cooploc import plots
 from cooploc._version import __version__
 from cooploc.experiment import ExperimentResult
 from cooploc.metrics import FEATURE, KIND_NAMES, VEHICLE, per_entity_rmse, rmse, total_rmse
+from cooploc.plots import run_figures, run_report
 
 __all__ = ["errors_frame", "summarize", "write_results"]
 
@@ -125,7 +125,7 @@ def write_results(result: ExperimentResult, out: str | os.PathLike[str]) -> Path
     (folder / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     pq.write_table(errors_frame(result), folder / "errors.parquet")
     (folder / "config.toml").write_text(tomli_w.dumps(_toml_ready(result.config.to_dict())))
-    figures = plots.run_figures(result, summary, folder)
-    (folder / "report.md").write_text(plots.run_report(summary, figures))
+    figures = run_figures(result, summary, folder)
+    (folder / "report.md").write_text(run_report(summary, figures))
     return folder
 

@@ -30,15 +30,14 @@ Complexity O(S K M N_p² (1 + I)) kernel work, done as one numba pass that fills
 (S K M N_p² doubles; with more than `kernel_memory_mb` the kernel is recomputed per
 use instead of stored), plus O(S K M P) for the association.
 
-Measured (`python benchmarks/rsu_bp.py`, froehle2018, 2-core machine): N_p = 600,
-10 runs × 501 steps — 29 steps/s, vehicle-2 RMSE 0.84 m against 0.71 m for `oracle-kf`
-(1.20 ×, bootstrap 90 % interval 1.17–1.23 over runs; 1.23 × without the shrinkage
-move below) and 2.52 m for `gnss-kf`; N_p = 2000 (1 run, 201 steps) — 2.8 steps/s,
-1.22 × the bound. A single run's RMSE is a time average of strongly correlated errors,
-so a ratio from two runs can land anywhere in 1.1–1.4. The gap to the bound is BP's:
-beliefs are products of marginals, so the vehicle–feature correlation that the joint
-Kalman filter keeps is dropped every step (the paper's §V-B remark), plus particle
-noise that shrinks with N_p.
+Accuracy against the bound: BP beliefs are products of marginals, so the
+vehicle–feature correlation that the joint Kalman filter (`oracle-kf`) keeps is
+dropped every step (the paper's §V-B remark), and particle noise adds to it (it
+shrinks with N_p); rsu-bp therefore stays above the known-association bound.
+`python benchmarks/rsu_bp.py` measures its speed and its RMSE ratio to `oracle-kf`
+over several runs (one run's RMSE is a time average of strongly correlated errors,
+so a ratio from a run or two is not a measurement), and `cooploc reproduce
+froehle2018` sets it beside the paper's figures.
 
 Choices the paper leaves open (DESIGN note):
 - Vehicle births: the prior of `Setup.vehicle_prior` (or a broad belief at the first
@@ -63,7 +62,7 @@ Choices the paper leaves open (DESIGN note):
   `shrinkage_move=false` turns it off). Without it, a vehicle whose 10 m birth prior
   collapses onto the few particles that fit the first V2F update keeps only their
   velocities, and process noise restores the spread so slowly that a wrong velocity
-  can drive the position 8 m off for 20 steps (seen in `froehle2018` runs). The paper
+  can drive the position metres off for tens of steps. The paper
   only says it resamples; kernel smoothing of the particles is the usual companion in
   nonparametric BP.
 - A message that vanishes at every particle (e.g. all kernel values underflow) is

@@ -54,9 +54,8 @@ Choices the paper leaves open
   pools all vehicles in `vehicle_rmse_all` and lists every id in `vehicle_rmse`.
 - Δ = π/3 is the notes' choice (the paper's value was lost). Accuracy depends on it
   strongly: with Δ < π/2 the arrays miss the vehicles ahead and behind, most of a
-  vehicle's neighbours on a street. Share of non-anchor vehicles within 4 m and
-  0.15 rad for `plbp` (`cooploc reproduce plbp`, 40 snapshots): 84 % at 45°, 92 % at
-  60°, 96 % at 75°, 98 % at 90°.
+  vehicle's neighbours on a street. `cooploc reproduce plbp` measures the share of
+  non-anchor vehicles within 4 m and 0.15 rad against Δ (its `field_of_view.png`).
 - Measurement noise is added to the true relative angle and the reading wrapped to
   [−π, π).
 - Both array centres at the vehicle's reference point (paper footnote 1).
