@@ -575,19 +575,24 @@ class Truth:
             object.__setattr__(self, name, value)
 
     @classmethod
-    def vehicles_only(cls, vehicle_ids: npt.ArrayLike, vehicle_states: npt.ArrayLike,
-                      origin: Sequence[Mapping[str, IntArray]],
-                      sensor_poses: npt.ArrayLike | None = None) -> Truth:
-        """The truth of a run without features whose vehicles are present at every step."""
+    def always_present(cls, vehicle_ids: npt.ArrayLike, vehicle_states: npt.ArrayLike,
+                       origin: Sequence[Mapping[str, IntArray]],
+                       feature_ids: npt.ArrayLike | None = None,
+                       feature_states: npt.ArrayLike | None = None,
+                       sensor_poses: npt.ArrayLike | None = None) -> Truth:
+        """The truth of a run whose vehicles (and features, if any) are present at every
+        step: states (T, N, dx) and (T, K, df); no features gives K = 0 with df = dx."""
         states = np.asarray(vehicle_states, dtype=float)
         n_steps, n_vehicles, dx = states.shape
+        features = (np.zeros((n_steps, 0, dx)) if feature_states is None
+                    else np.asarray(feature_states, dtype=float))
         return cls(
             vehicle_ids=vehicle_ids,
             vehicle_states=states,
             vehicle_present=np.ones((n_steps, n_vehicles), dtype=bool),
-            feature_ids=np.zeros(0, dtype=np.int64),
-            feature_states=np.zeros((n_steps, 0, dx)),
-            feature_present=np.zeros((n_steps, 0), dtype=bool),
+            feature_ids=np.zeros(0, dtype=np.int64) if feature_ids is None else feature_ids,
+            feature_states=features,
+            feature_present=np.ones(features.shape[:2], dtype=bool),
             origin=origin,
             sensor_poses=np.zeros((0, 3)) if sensor_poses is None else sensor_poses,
         )

@@ -211,7 +211,7 @@ def generate(params: AoaGridParams, rng: np.random.Generator) -> Recording:
     )
     wrapped = states.copy()
     wrapped[..., 2] = (wrapped[..., 2] + np.pi) % (2 * np.pi) - np.pi
-    truth = Truth.vehicles_only(ids, wrapped, origins)
+    truth = Truth.always_present(ids, wrapped, origins)
     return Recording(setup, frames, truth)
 
 

@@ -234,15 +234,7 @@ def generate(params: BrambillaParams, rng: np.random.Generator) -> Recording:
         description=(f"Brambilla 2020 §V {p.geometry}: {N} vehicles, {K} features, "
                      f"{T} steps of {dt} s"),
     )
-    truth = Truth(
-        vehicle_ids=vehicle_ids,
-        vehicle_states=vehicles,
-        vehicle_present=np.ones((T, N), dtype=bool),
-        feature_ids=feature_ids,
-        feature_states=features,
-        feature_present=np.ones((T, K), dtype=bool),
-        origin=origins,
-    )
+    truth = Truth.always_present(vehicle_ids, vehicles, origins, feature_ids, features)
     return Recording(setup, frames, truth)
 
 

@@ -169,15 +169,7 @@ def generate(params: FroehleParams, rng: np.random.Generator) -> Recording:
         clutter_region=region if params.clutter_rate > 0 else None,
         description=f"Fröhle 2018 §V-A: {S} vehicles, {K} features, {T} steps of {dt} s",
     )
-    truth = Truth(
-        vehicle_ids=vehicle_ids,
-        vehicle_states=vehicles,
-        vehicle_present=np.ones((T, S), dtype=bool),
-        feature_ids=feature_ids,
-        feature_states=features,
-        feature_present=np.ones((T, K), dtype=bool),
-        origin=origins,
-    )
+    truth = Truth.always_present(vehicle_ids, vehicles, origins, feature_ids, features)
     return Recording(setup, frames, truth)
 
 

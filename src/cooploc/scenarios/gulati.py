@@ -133,7 +133,7 @@ def generate(params: GulatiParams, rng: np.random.Generator) -> Recording:
         description=f"Gulati 2017 §IV-A: {N} vehicles, GPS + odometry + anonymous radar, "
                     f"{T} steps of {dt} s",
     )
-    truth = Truth.vehicles_only(ids, states, origins, pose[None])
+    truth = Truth.always_present(ids, states, origins, sensor_poses=pose[None])
     return Recording(setup, frames, truth)
 
 

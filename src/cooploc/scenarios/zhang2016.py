@@ -187,7 +187,7 @@ def generate(params: ZhangParams, rng: np.random.Generator) -> Recording:
         description=f"Zhang 2016 §4.1: {N} vehicles ({turning} turning), anonymous GPS and "
                     f"a radar of unknown pose, {T} steps of {dt} s",
     )
-    truth = Truth.vehicles_only(ids, states, origins, pose[None])
+    truth = Truth.always_present(ids, states, origins, sensor_poses=pose[None])
     return Recording(setup, frames, truth)
 
 
