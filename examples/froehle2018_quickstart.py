@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:
     params = preset.params.with_overrides({"n_steps": 40 if args.small else 501})
     recording = preset.generate(np.random.default_rng(1), params)
     gnss_kf = cooploc.make_estimator("gnss-kf", recording.setup, None, np.random.default_rng(2))
-    errors = cooploc.evaluate(recording, [gnss_kf.step(frame) for frame in recording.frames])
+    errors = cooploc.evaluate(recording, cooploc.estimate(gnss_kf, recording))
     print("one run, gnss-kf vehicle 1 RMSE [m]:", round(cooploc.rmse(errors.err_pos[errors.id == 1]), 3))
 
     # 2. Monte Carlo with both estimators (one seed → every number)

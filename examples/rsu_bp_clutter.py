@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> dict[str, list[float]]:
     rmse: dict[str, list[float]] = {}
     for name, est_params in (("gnss-kf", None), ("rsu-bp", rsu_params)):
         estimator = cooploc.make_estimator(name, recording.setup, est_params, np.random.default_rng(4))
-        estimates = [estimator.step(frame) for frame in recording.frames]
+        estimates = cooploc.estimate(estimator, recording)
         errors = cooploc.evaluate(recording, estimates)
         rmse[name] = [cooploc.rmse(errors.err_pos[(errors.kind == 0) & (errors.id == v)]) for v in (0, 1)]
         print(f"{name:>8}: vehicle 0 {rmse[name][0]:.3f} m, vehicle 1 {rmse[name][1]:.3f} m")
