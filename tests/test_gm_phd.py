@@ -25,10 +25,10 @@ from cooploc.estimators.gm_phd import (
     Mixture,
     merge_components,
     phd_update,
-    stonesoup_reference,
 )
 from cooploc.scenarios import get_preset
 from cooploc.types import Frame, Recording
+from stonesoup_reference import stonesoup_reference
 
 AGREE = 1e-7  # relative: the same equations in a different order of floating-point operations
 PRUNED_MASS = 1e-4  # absolute, weights: Stone Soup redistributes pruned weight (< T = 1e-5 each)

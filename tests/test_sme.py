@@ -155,7 +155,7 @@ def test_topology_noise_matches_monte_carlo(rng: np.random.Generator, equal: boo
     mean, variance = topology_moments(points, var)
     noisy = points + rng.standard_normal((MC_SAMPLES, n, 2)) * np.sqrt(var)[:, None]
     assert_moments_match(topology(noisy)[:, None], np.array([mean]), np.array([[variance]]))
-    if equal:  # the closed form of the module docstring
+    if equal:  # the closed form of docs/sme.md (topology, equal d)
         d, spread = var[0], ((points - points.mean(0)) ** 2).sum()
         assert variance == pytest.approx(4 * d**2 * n**2 * (n - 1) + 4 * n**2 * d * spread, rel=1e-12)
 
@@ -177,7 +177,7 @@ def test_numba_likelihood_equals_the_numpy_reference(rng: np.random.Generator, f
 
 def test_systematic_resampling_keeps_the_weights(rng: np.random.Generator) -> None:
     w = rng.dirichlet(np.ones(20))
-    counts = np.bincount(systematic_resample(np.log(w), rng), minlength=20)
+    counts = np.bincount(systematic_resample(np.log(w), rng)[0], minlength=20)   # one belief: row 0
     # systematic resampling: each count is floor or ceil of P w
     P = 20
     assert np.all(np.abs(counts - P * w) < 1.0 + 1e-12)
@@ -235,3 +235,21 @@ def test_pf_gates_clutter_rows(short_cv: Recording) -> None:
                               {"gnss": clutter, "radar": frame.batches["radar"]}))
     assert estimate.info["gnss_rows_gated"] == 1 and estimate.info["gnss_rows_used"] == len(gnss)
     assert "gnss" not in estimate.info["skipped"]
+
+
+def test_joint_cloud_moments_are_the_per_block_weighted_moments(rng: np.random.Generator) -> None:
+    # sme-pf's joint particles (P, N, dx) share one weight per particle: each block's
+    # marginal is the belief (N_p = P) of `weighted_moments` with those weights
+    from cooploc.particles import Particles, marginal_moments, normalize_log_weights, weighted_moments
+
+    samples = rng.normal(size=(500, 3, 4)) * [1.0, 5.0, 0.1, 2.0]
+    log_w = rng.normal(size=500) * 2.0 + 7.0                        # unnormalised on purpose
+    mean, cov = marginal_moments(samples, log_w)
+    normalised, _ = normalize_log_weights(log_w)
+    per_block = Particles(samples.transpose(1, 0, 2), np.broadcast_to(normalised, (3, 500)))
+    ref_mean, ref_cov = weighted_moments(per_block, min_variance=0.0)
+    np.testing.assert_allclose(mean, ref_mean, rtol=ROUND_OFF, atol=ROUND_OFF)
+    floor = 1e-9 * np.trace(cov, axis1=1, axis2=2) / 4            # weighted_moments' own floor
+    np.testing.assert_allclose(cov + floor[:, None, None] * np.eye(4), ref_cov,
+                               rtol=ROUND_OFF, atol=ROUND_OFF)
+    np.testing.assert_array_equal(cov, np.swapaxes(cov, -1, -2))

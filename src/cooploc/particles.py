@@ -14,6 +14,8 @@ This module is the one home of the particle toolkit of every estimator (`rsu-bp`
   weight CDF (Arulampalam et al. 2002, Alg. 2); O(n N_p) with `searchsorted`;
 - `effective_sample_size` — N_eff = (Σ_l w_l)² / Σ_l w_l² (degeneracy diagnostic);
 - `weighted_moments` — mean and covariance of each belief (symmetrised, floored);
+- `marginal_moments` — mean and covariance of each block of one joint belief whose
+  particles carry one weight for all blocks (the joint vehicle state of `sme-pf`);
 - `pair_kernel` / `pair_kernel_log_sum` — the hot loop of nonparametric BP with relative
   measurements (Fröhle eqs. (14), (21), (23)): for every block b (a sensor–feature–
   measurement triple) and every pair of particles (j, l)
@@ -50,6 +52,7 @@ __all__ = [
     "Particles",
     "effective_sample_size",
     "log_sum_exp",
+    "marginal_moments",
     "normalize_log_weights",
     "pair_kernel",
     "pair_kernel_log_sum",
@@ -227,6 +230,26 @@ def weighted_moments(particles: Particles, min_variance: float = 1e-12) -> tuple
     d = x.shape[2]
     floor = min_variance + 1e-9 * np.trace(cov, axis1=1, axis2=2) / max(d, 1)
     return mean, cov + floor[:, None, None] * np.eye(d)
+
+
+def marginal_moments(samples: FloatArray, log_weights: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Weighted mean (N, d) and covariance (N, d, d) of each block of one joint belief.
+
+    A joint particle belief over N blocks (e.g. the vehicles of `sme-pf`) holds samples
+    (P, N, d) and one log-weight per joint particle (P,) (need not be normalised); every
+    block's marginal shares those weights:
+
+        mean_n = Σ_p w_p x_{p,n},   cov_n = Σ_p w_p (x_{p,n} − mean_n)(x_{p,n} − mean_n)ᵀ.
+
+    The covariances are symmetrised but not floored (unlike `weighted_moments`): the
+    caller chooses how to keep a collapsed cloud positive definite.
+    """
+    lw = np.asarray(log_weights, dtype=float)
+    w = np.exp(lw - log_sum_exp(lw, axis=None))
+    mean = np.einsum("p,pni->ni", w, samples)
+    centred = samples - mean
+    cov = np.einsum("p,pni,pnj->nij", w, centred, centred)
+    return mean, 0.5 * (cov + np.swapaxes(cov, -1, -2))
 
 
 def sample_gaussians(mean: FloatArray, cov: FloatArray, n_particles: int,

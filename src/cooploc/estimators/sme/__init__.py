@@ -1,0 +1,57 @@
+"""`sme-pf`, `sme-ukf`: the symmetric measurement equation (SME) filter of Zhang et al. 2016.
+
+Paper: Zhang, Hinz, Gulati, Clarke & Knoll, GeoInformatica 2016, §3.2–3.3
+(``papers/001_80a6c560b7fdaa20.txt``); SME after Kamen 1992 and Leven & Lanterman 2004.
+
+Anonymous GPS rows become sums of powers (eq. 17) and radar rows of unknown pose the
+topology of the vehicles (eq. 18), both symmetric in the vehicles, so the joint state
+x = [x¹; …; xᴺ] (eq. 1) is filtered without data association through the stacked
+pseudo-measurement of eq. (19). Derivation of its noise moments: ``docs/sme.md``.
+
+The problem apart from the filters that use it:
+
+- `pseudo_measurement` — the symmetric maps, their exact Gaussian noise moments,
+  Newton's identities, and `PseudoMeasurement` (eq. 19 of one step; its numba
+  likelihood kernel lives in the private `_kernels`, compiled on first use);
+- `filter_base` — what both filters share: parameters, vehicles entering and leaving,
+  GPS gating against clutter, the per-step assembly of eq. (19);
+- `pf` — `sme-pf` (`SmePF`, `SmePFParams`): the paper's particle filter;
+- `ukf` — `sme-ukf` (`SmeUKF`, `SmeUKFParams`): the §4.2.3 check under a UKF.
+
+`systematic_resample` is `cooploc.particles.systematic_resample`, re-exported for the
+callers of this module's former private copy.
+"""
+
+from __future__ import annotations
+
+from cooploc.estimators.sme.pf import SmePF, SmePFParams
+from cooploc.estimators.sme.pseudo_measurement import (
+    PseudoMeasurement,
+    complex_power_sum_moments,
+    complex_power_sums,
+    gaussian_raw_moments,
+    points_from_power_sums,
+    power_sum_moments,
+    power_sums,
+    topology,
+    topology_moments,
+)
+from cooploc.estimators.sme.ukf import SmeUKF, SmeUKFParams
+from cooploc.particles import systematic_resample
+
+__all__ = [
+    "PseudoMeasurement",
+    "SmePF",
+    "SmePFParams",
+    "SmeUKF",
+    "SmeUKFParams",
+    "complex_power_sum_moments",
+    "complex_power_sums",
+    "gaussian_raw_moments",
+    "points_from_power_sums",
+    "power_sum_moments",
+    "power_sums",
+    "systematic_resample",
+    "topology",
+    "topology_moments",
+]

@@ -1,0 +1,174 @@
+"""What both SME filters share: parameters, vehicles in and out, gating, eq. (19) per step.
+
+Paper: Zhang et al. 2016 (``papers/001_80a6c560b7fdaa20.txt``), §3.3 and §4.2.1.
+
+Model
+-----
+The joint state stacks the N present vehicles, x = [x¹; …; xᴺ] (eq. 1), each in
+cooploc's layout of the setup (e.g. [p_x, p_y, v_x, v_y]); every block follows the
+vehicles' motion model x_k = A x_{k−1} + w_k (eqs. 5–6, 16), with Q at rest where the
+model's noise is state dependent. Each step `_SmeFilter._pseudo_measurement` turns the
+frame into the `PseudoMeasurement` of eq. (19): the GPS sums of powers (eq. 17, per
+axis or complex) and the radar topology (eq. 18), scaled by a centre and length fixed by
+the predicted belief (``docs/sme.md``, "Numerical scaling").
+
+Missed detections and clutter (§4.2.1 leaves them open)
+-------------------------------------------------------
+The SME map needs exactly N rows. When the setup has clutter (`Setup.clutter_rate` > 0)
+or more than N rows arrive, GPS rows farther than the χ²₂ gate `gate_probability` from
+every predicted vehicle (Mahalanobis, predicted covariance + row covariance) are dropped
+as clutter. Without clutter, N rows are used as they come: gating them would let a
+filter that drifted discard the rows that could bring it back. If the count of the
+remaining GPS rows (resp. of the radar rows, which cannot be gated without the pose)
+differs from N, that pseudo-measurement is skipped this step and the filter only
+predicts with it. `Estimate.info` reports ``gnss_rows_used``, ``gnss_rows_gated`` and
+``skipped`` (kinds skipped this step).
+
+Vehicles that enter get a block from `Setup.vehicle_prior` if they have one (predicted
+to the step), else a belief centred on the GPS row farthest from every predicted vehicle
+with `default_birth_cov` velocity variance; vehicles that leave lose their block.
+
+Estimates are set-valued: the vehicle blocks carry the ids of `frame.vehicles` in order,
+but the measurements cannot tell vehicles apart, so ``info["set_valued"]`` is True and
+metrics score them after an optimal assignment (`metrics.evaluate`).
+
+Complexity per step: O(M N) for the gate of M GPS rows, O(N²) for the maps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+
+from cooploc.estimators.base import birth_beliefs, default_birth_cov
+from cooploc.estimators.sme.pseudo_measurement import (
+    PseudoMeasurement,
+    complex_power_sums,
+    power_sums,
+    topology,
+)
+from cooploc.params import Params, param
+from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+
+
+@dataclass(frozen=True)
+class _SmeParams(Params):
+    """Parameters shared by both SME filters.
+
+    form : "axes" — eq. (17), sums of powers of the x and of the y coordinates (the
+        paper's); "complex" — sums of powers of x + i y (keeps which x goes with which y).
+
+    min_scale : smallest length ℓ (m) of the position scaling.
+    jitter : relative regularisation of the pseudo-measurement covariance.
+    gate_probability : χ²₂ gate of GPS rows against the predicted vehicles (clutter).
+    use_radar : use the topology pseudo-measurement of the radar (eq. 18).
+    """
+
+    form: Literal["axes", "complex"] = "complex"
+    min_scale: float = param(10.0, gt=0)
+    jitter: float = param(1e-9, ge=0, lt=1)
+    gate_probability: float = param(0.9999, gt=0, lt=1)
+    use_radar: bool = True
+
+
+class _SmeFilter:
+    """Bookkeeping of both SME filters: vehicles in and out, pseudo-measurements, gating."""
+
+    Params: ClassVar[type[Params]]
+    needs_truth: ClassVar[bool] = False
+    default_preset: ClassVar[str] = "zhang2016-cv"
+    required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "radar")
+
+    def __init__(self, setup: Setup, params: _SmeParams, rng: np.random.Generator) -> None:
+        from scipy.stats import chi2
+
+        self.setup = setup
+        self.params = params
+        self.rng = rng
+        self.pos = list(setup.vehicle_layout.position)
+        self.dx = setup.vehicle_layout.dim
+        self.F = setup.vehicle_motion.transition_matrix(setup.dt)
+        self.Q = setup.vehicle_motion.noise_covariance(setup.dt)
+        if self.Q.ndim == 3:  # state-dependent noise: use its value at rest for the joint model
+            self.Q = self.Q[0]
+        self.ids: IntArray = np.zeros(0, np.int64)
+        self._gate = chi2.ppf(params.gate_probability, df=2)
+        self._gnss_cols = list(getattr(setup.sensors.get("gnss"), "state_indices", self.pos))
+
+    # -- to be provided by the filter ------------------------------------------------
+    def _moments(self) -> tuple[FloatArray, FloatArray]:
+        """(N, dx) mean and (N, dx, dx) covariance of each vehicle block."""
+        raise NotImplementedError
+
+    # -- shared ------------------------------------------------------------------------
+    def _births(self, born: IntArray, frame: Frame, predicted: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Mean (b, dx) and cov (b, dx, dx) of entering vehicles (module docstring)."""
+        beliefs = birth_beliefs(self.setup, born, frame)
+        mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
+        unknown = np.flatnonzero(~np.isin(born, self.setup.vehicle_prior.ids))
+        gnss = frame.batches.get("gnss")
+        if unknown.size and gnss is not None and len(gnss):
+            z = gnss.z
+            if predicted.shape[0]:
+                dist = np.linalg.norm(z[:, None, :] - predicted[None, :, :], axis=-1).min(axis=1)
+            else:
+                dist = np.zeros(len(z))
+            rows = np.argsort(-dist, kind="stable")[: unknown.size]
+            for i, row in zip(unknown[: rows.size], rows, strict=False):
+                mean[i] = 0.0
+                mean[i, self._gnss_cols] = z[row]
+                cov[i] = default_birth_cov(self.setup)
+                cov[i][np.ix_(self.pos, self.pos)] = gnss.cov[row]
+        return mean, cov
+
+    def _pseudo_measurement(self, frame: Frame, mean: FloatArray, cov: FloatArray
+                            ) -> tuple[PseudoMeasurement, dict[str, Any]]:
+        """Build eq. (19) from the frame, gating GPS rows against the predicted vehicles."""
+        n = mean.shape[0]
+        p = mean[:, self.pos]
+        centre = p.mean(axis=0)
+        scale = max(float(np.sqrt(((p - centre) ** 2).sum(-1).mean())), self.params.min_scale)
+        info: dict[str, Any] = {"skipped": [], "gnss_rows_used": 0, "gnss_rows_gated": 0}
+        y_gnss, gnss_var = None, np.ones(2)
+        gnss = frame.batches.get("gnss")
+        if gnss is not None and len(gnss):
+            S = cov[:, self.pos][:, :, self.pos][None] + gnss.cov[:, None]          # (M, N, 2, 2)
+            r = gnss.z[:, None, :] - p[None]
+            d2 = np.einsum("mni,mni->mn", r, np.linalg.solve(S, r[..., None])[..., 0])
+            keep = d2.min(axis=1) <= self._gate
+            if len(gnss) == n and self.setup.clutter_rate == 0:
+                keep[:] = True  # no clutter in the model: N rows are the N vehicles
+            info["gnss_rows_gated"] = int((~keep).sum())
+            if keep.sum() == n:
+                z = gnss.z[keep]
+                gnss_var = np.einsum("mii->mi", gnss.cov[keep]).mean(0) / scale**2
+                u = (z - centre) / scale
+                y_gnss = (complex_power_sums(u, n) if self.params.form == "complex"
+                          else np.concatenate([power_sums(u[:, a], n) for a in range(2)]))
+                info["gnss_rows_used"] = n
+            else:
+                info["skipped"].append("gnss")
+        elif n:
+            info["skipped"].append("gnss")
+        y_radar, radar_var = None, 1.0
+        radar = frame.batches.get("radar")
+        if self.params.use_radar and radar is not None and len(radar):
+            if len(radar) == n and n >= 2:
+                y_radar = float(topology(radar.z)) / scale**2
+                # isotropic per-axis variance of each row: the rotation is unknown, so a
+                # non-isotropic covariance is replaced by its mean eigenvalue
+                radar_var = float(np.einsum("mii->m", radar.cov).mean() / 2) / scale**2
+            else:
+                info["skipped"].append("radar")
+        elif self.params.use_radar and n:
+            info["skipped"].append("radar")
+        model = PseudoMeasurement(centre, scale, self.params.form, gnss_var, radar_var, y_gnss, y_radar,
+                                  self.params.jitter)
+        return model, info
+
+    def _estimate(self, info: dict[str, Any]) -> Estimate:
+        mean, cov = self._moments()
+        info["set_valued"] = True
+        return Estimate(StateSet(self.ids, mean, cov), None, info)

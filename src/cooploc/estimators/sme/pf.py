@@ -1,0 +1,278 @@
+r"""`sme-pf`: the SME particle filter over the joint state of all vehicles (Zhang et al. 2016).
+
+Paper: Zhang, Hinz, Gulati, Clarke & Knoll, GeoInformatica 2016, §3.3 and §4.1
+(``papers/001_80a6c560b7fdaa20.txt``): the paper's method, "the particle filter is
+utilized to execute the SME filter with the sum of powers format".
+
+Model
+-----
+Particles (n_particles, N, dx) of the joint state x = [x¹; …; xᴺ] (eq. 1), one weight
+per joint particle, predicted block by block by the motion model, x_k = A x_{k−1} + w_k
+(eq. 16), and weighted in log domain by the Gaussian pseudo-likelihood of eq. (19)
+evaluated *per particle*, p(y | x) = N(y; h(x) + b(x), R(x)) with its own bias and
+covariance (`PseudoMeasurement.log_likelihood`, numba; noise moments in ``docs/sme.md``).
+
+Choices the paper leaves open
+-----------------------------
+- Tempering. A plain bootstrap update collapses in this 4N-dimensional state, so the
+  likelihood enters in powers δ (progressive correction, Oudjane & Musso 2000) chosen
+  by bisection so that each stage keeps `target_ess` of the particles (Jasra et al.
+  2011): w ∝ w p(y | x)^δ.
+- Resample-move. After each systematic resampling inside the update, `n_moves`
+  Metropolis–Hastings sweeps move the particles (Gilks & Berzuini 2001) with target
+  p(x_k | x_{k−1}) p(y | x_k)^β given each particle's own parent x_{k−1}; random-walk
+  proposals scaled 2.38²/d times the narrower of the cloud's and the transition's
+  covariance (Roberts & Rosenthal 2001; acceptance ≈ 0.24).
+- Relabelling. After each update the vehicle blocks of every particle are permuted to
+  best match the predicted estimate (exhaustive over the N! permutations for N ≤ 7,
+  otherwise skipped). The likelihood and the (identical per-vehicle) motion model are
+  symmetric, so this leaves the symmetrised posterior unchanged, but it keeps particles
+  that swapped two crossing vehicles from being averaged into a point between them
+  (the MMOSPA-style estimate of Crouse, Willett et al. 2011).
+- `n_particles`: `benchmarks/zhang2016.py` and `cooploc reproduce zhang2016` measure
+  the error against the particle count; the default is chosen from that curve.
+- Resampling, effective sample size and the moments of the joint cloud come from
+  `cooploc.particles` (`systematic_resample`, `effective_sample_size`,
+  `marginal_moments`); a floor of 1e-9 on each block's covariance keeps it positive
+  definite when the particles collapse.
+
+`Estimate.info` adds ``ess``, ``resampled``, ``stages`` (tempering stages this step),
+``acceptance`` (of the moves) and ``degenerate`` (every likelihood was zero) to the
+keys of `filter_base`.
+
+Complexity per step: O(S P N⁴) for S tempering stages with `n_moves` likelihood passes
+each (per particle: moments O(N³), O(N⁴) in complex form, and a 2N × 2N Cholesky), plus
+O(P N! N) for the relabelling.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from cooploc.estimators.sme.filter_base import _SmeFilter, _SmeParams
+from cooploc.estimators.sme.pseudo_measurement import PseudoMeasurement
+from cooploc.params import Params, param
+from cooploc.particles import effective_sample_size, log_sum_exp, marginal_moments, systematic_resample
+from cooploc.registry import register_estimator
+from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+
+__all__ = ["SmePF", "SmePFParams"]
+
+_MAX_EXHAUSTIVE = 7  # N! permutations up to 5040 for the relabelling
+
+
+@dataclass(frozen=True)
+class SmePFParams(_SmeParams):
+    """`sme-pf` parameters.
+
+    n_particles : particles of the joint state (default chosen by measurement: see
+        `benchmarks/zhang2016.py` and the report of `cooploc reproduce zhang2016`).
+    resample_threshold : resample when ESS < threshold · n_particles.
+    relabel : align the vehicle blocks of the particles to the predicted estimate.
+    target_ess : ESS fraction each tempering stage keeps (progressive correction).
+    n_moves : Metropolis–Hastings sweeps after each resampling inside the update (0: a
+        plain bootstrap filter with tempering only).
+    max_stages : at most this many tempering stages per step.
+    """
+
+    n_particles: int = param(2000, ge=2)
+    resample_threshold: float = param(0.5, ge=0, le=1)
+    relabel: bool = True
+    target_ess: float = param(0.5, gt=0, lt=1)
+    n_moves: int = param(2, ge=0)
+    max_stages: int = param(20, ge=1)
+
+
+@register_estimator
+class SmePF(_SmeFilter):
+    """SME particle filter over the joint state of all vehicles (the paper's method)."""
+
+    name: ClassVar[str] = "sme-pf"
+    summary: ClassVar[str] = ("symmetric measurement equation particle filter: anonymous GPS "
+                              "(sum of powers) + radar topology of unknown pose (Zhang 2016)")
+    Params: ClassVar[type[Params]] = SmePFParams
+
+    def __init__(self, setup: Setup, params: SmePFParams, rng: np.random.Generator) -> None:
+        super().__init__(setup, params, rng)
+        self.params: SmePFParams = params
+        P = params.n_particles
+        self.particles = np.zeros((P, 0, self.dx))
+        self.log_w = np.full(P, -np.log(P))
+        self._L_Q = np.linalg.cholesky(self.Q + 1e-12 * np.eye(self.dx))
+        self._perms: IntArray | None = None
+        self._started = False
+
+    def _moments(self) -> tuple[FloatArray, FloatArray]:
+        mean, cov = marginal_moments(self.particles, self.log_w)
+        return mean, cov + 1e-9 * np.eye(self.dx)  # keep SPD when particles collapse
+
+    def _sync(self, frame: Frame) -> None:
+        present = np.sort(frame.vehicles)
+        if np.array_equal(present, self.ids):
+            return
+        keep = np.isin(self.ids, present)
+        born = present[~np.isin(present, self.ids)]
+        continuing = self.particles[:, keep]
+        predicted = continuing[:, :, self.pos].mean(0) if continuing.shape[1] else np.zeros((0, 2))
+        parts, ids = [continuing], [self.ids[keep]]
+        if born.size:
+            mean, cov = self._births(born, frame, predicted)
+            L = np.linalg.cholesky(cov)
+            white = self.rng.standard_normal((self.params.n_particles, born.size, self.dx))
+            parts.append(mean + np.einsum("nij,pnj->pni", L, white))
+            ids.append(born)
+        ids_all = np.concatenate(ids)
+        order = np.argsort(ids_all)
+        self.ids = ids_all[order]
+        self.particles = np.concatenate(parts, axis=1)[:, order]
+        self._perms = None
+
+    def _relabel(self, reference: FloatArray) -> None:
+        """Permute each particle's vehicle blocks to best match `reference` (N, dx)."""
+        n = self.ids.size
+        if not self.params.relabel or n < 2 or n > _MAX_EXHAUSTIVE:
+            return
+        if self._perms is None or self._perms.shape[1] != n:
+            self._perms = np.array(list(itertools.permutations(range(n))), dtype=np.int64)
+        diff = self.particles[:, None, :, :] - reference[None, :, None, :]     # (P, N_ref, N, dx)
+        cost = (diff**2).sum(-1)                                                 # (P, i, j)
+        total = cost[:, np.arange(n)[None, :], self._perms].sum(-1)              # (P, n!)
+        best = self._perms[np.argmin(total, axis=1)]                             # (P, N)
+        moved = (best != np.arange(n)).any(axis=1)
+        if moved.any():
+            rows = np.flatnonzero(moved)
+            self.particles[rows] = np.take_along_axis(self.particles[rows], best[rows][..., None], 1)
+
+    def _log_prior(self, x: FloatArray, parents: FloatArray) -> FloatArray:
+        """log p(x_k | x_{k−1}) up to a constant, summed over vehicle blocks: (P,)."""
+        r = x - parents @ self.F.T
+        white = np.linalg.solve(self._L_Q, r.reshape(-1, self.dx).T).T          # L⁻¹ r
+        return -0.5 * (white**2).reshape(x.shape[0], -1).sum(-1)
+
+    def _move(self, model: PseudoMeasurement, beta: float, loglik: FloatArray,
+              parents: FloatArray) -> tuple[FloatArray, float]:
+        """`n_moves` Metropolis–Hastings sweeps targeting p(x | x_{k−1}) p(y | x)^β.
+
+        Random-walk proposals per vehicle block with covariance (2.38²/d) min(Σ̂, Q): the
+        spread of the cloud Σ̂ or, when the cloud is wider, of the transition kernel Q
+        that each particle's target is narrower than (d the joint dimension;
+        Roberts & Rosenthal 2001). Returns the new log-likelihoods and the acceptance rate.
+        """
+        P, n, dx = self.particles.shape
+        _, cov = self._moments()
+        # per block, the narrower of Σ̂ and Q in the sense of their traces
+        narrow = np.where((np.trace(cov, axis1=1, axis2=2) < np.trace(self.Q))[:, None, None],
+                          cov, self.Q)
+        L = np.linalg.cholesky(narrow * (2.38**2 / (n * dx)) + 1e-12 * np.eye(dx))   # (N, dx, dx)
+        log_prior = self._log_prior(self.particles, parents)
+        accepted = 0
+        for _ in range(self.params.n_moves):
+            proposal = self.particles + np.einsum(
+                "nij,pnj->pni", L, self.rng.standard_normal(self.particles.shape))
+            ll_new = model.log_likelihood(proposal[:, :, self.pos])
+            lp_new = self._log_prior(proposal, parents)
+            log_alpha = beta * (ll_new - loglik) + lp_new - log_prior
+            accept = np.log(self.rng.random(P)) < np.nan_to_num(log_alpha, nan=-np.inf)
+            self.particles[accept] = proposal[accept]
+            loglik = np.where(accept, ll_new, loglik)
+            log_prior = np.where(accept, lp_new, log_prior)
+            accepted += int(accept.sum())
+        return loglik, accepted / max(P * self.params.n_moves, 1)
+
+    def _resample(self) -> IntArray:
+        """Systematic resampling of the joint particles to equal weights: the parent of each (P,)."""
+        idx = systematic_resample(self.log_w, self.rng)[0]   # one belief: row 0 of (1, P)
+        self.particles = self.particles[idx]
+        self.log_w = np.full(idx.size, -np.log(idx.size))
+        return idx
+
+    def _ess(self) -> float:
+        return float(effective_sample_size(self.log_w))
+
+    def _next_increment(self, loglik: FloatArray, remaining: float) -> float:
+        """Largest δ ≤ remaining with ESS(w · p(y|x)^δ) ≥ target (bisection; Jasra et al. 2011)."""
+        target = self.params.target_ess * self.log_w.size
+
+        def ess(delta: float) -> float:
+            return float(effective_sample_size(self.log_w + delta * loglik))
+
+        if ess(remaining) >= target:
+            return remaining
+        low, high = 0.0, remaining
+        for _ in range(30):
+            mid = 0.5 * (low + high)
+            low, high = (mid, high) if ess(mid) >= target else (low, mid)
+        return max(low, remaining * 1e-3)
+
+    def _update(self, model: PseudoMeasurement, parents: FloatArray, info: dict[str, Any]) -> None:
+        """Tempered update (progressive correction) with resample-move between stages."""
+        loglik = model.log_likelihood(self.particles[:, :, self.pos])
+        finite = np.isfinite(loglik)
+        if not finite.any():
+            info["degenerate"] = True
+            return
+        loglik = np.where(finite, loglik, -1e300)
+        beta, stages, rates = 0.0, 0, []
+        while beta < 1.0:
+            stages += 1
+            remaining = 1.0 - beta
+            delta = remaining if stages >= self.params.max_stages else self._next_increment(
+                loglik, remaining)
+            # w ∝ w p(y | x)^δ   (eq. 19 pseudo-likelihood, tempered)
+            self.log_w = self.log_w + delta * loglik
+            self.log_w -= log_sum_exp(self.log_w, axis=None)
+            beta = 1.0 if delta >= remaining else beta + delta
+            if beta < 1.0 or self._ess() < self.params.resample_threshold * self.log_w.size:
+                idx = self._resample()
+                parents, loglik = parents[idx], loglik[idx]
+                if self.params.n_moves:
+                    loglik, rate = self._move(model, beta, loglik, parents)
+                    rates.append(rate)
+        info["stages"] = stages
+        info["acceptance"] = float(np.mean(rates)) if rates else None
+
+    def step(self, frame: Frame) -> Estimate:
+        parents = None  # x_{k−1} of each particle, for the move kernel
+        if self.ids.size and self._started:
+            parents = self.particles
+            # predict: x_k = A x_{k−1} + w_k, every vehicle block (eq. 16)
+            noise = self.rng.standard_normal(self.particles.shape) @ self._L_Q.T
+            self.particles = self.particles @ self.F.T + noise
+        self._started = True
+        if not np.array_equal(np.sort(frame.vehicles), self.ids):
+            self._sync(frame)
+            parents = None  # blocks changed: no move kernel this step
+        info: dict[str, Any] = {"n_particles": self.params.n_particles}
+        n = self.ids.size
+        if n == 0:
+            info.update(set_valued=True, skipped=[], ess=float(self.params.n_particles),
+                        resampled=False, stages=0)
+            return Estimate(StateSet.empty(self.dx), None, info)
+        mean, cov = self._moments()
+        model, pm_info = self._pseudo_measurement(frame, mean, cov)
+        info.update(pm_info)
+        info["stages"] = 0
+        if model.y_gnss is not None or model.y_radar is not None:
+            if parents is None:
+                # nothing to move against (first step, vehicles entered): one plain update
+                self.log_w = self.log_w + model.log_likelihood(self.particles[:, :, self.pos])
+                self.log_w = np.where(np.isfinite(self.log_w), self.log_w, -np.inf)
+                if not np.isfinite(self.log_w).any():
+                    self.log_w = np.zeros_like(self.log_w)
+                    info["degenerate"] = True
+                self.log_w -= log_sum_exp(self.log_w, axis=None)
+                info["stages"] = 1
+            else:
+                self._update(model, parents, info)
+        self._relabel(mean)
+        ess = self._ess()
+        info["ess"] = ess
+        estimate = self._estimate(info)
+        info["resampled"] = ess < self.params.resample_threshold * self.params.n_particles
+        if info["resampled"]:
+            self._resample()
+        return estimate
