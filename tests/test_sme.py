@@ -26,11 +26,11 @@ from cooploc.estimators.sme import (
     points_from_power_sums,
     power_sum_moments,
     power_sums,
-    systematic_resample,
     topology,
     topology_moments,
 )
 from cooploc.geometry import rotation
+from cooploc.particles import systematic_resample
 from cooploc.scenarios import get_preset
 from cooploc.types import Batch, Frame, Recording
 from helpers import assert_valid_estimate

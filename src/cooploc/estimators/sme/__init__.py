@@ -18,8 +18,8 @@ The problem apart from the filters that use it:
 - `pf` — `sme-pf` (`SmePF`, `SmePFParams`): the paper's particle filter;
 - `ukf` — `sme-ukf` (`SmeUKF`, `SmeUKFParams`): the §4.2.3 check under a UKF.
 
-`systematic_resample` is `cooploc.particles.systematic_resample`, re-exported for the
-callers of this module's former private copy.
+The particle toolkit (resampling, effective sample size, moments) is
+`cooploc.particles`.
 """
 
 from __future__ import annotations
@@ -37,7 +37,6 @@ from cooploc.estimators.sme.pseudo_measurement import (
     topology_moments,
 )
 from cooploc.estimators.sme.ukf import SmeUKF, SmeUKFParams
-from cooploc.particles import systematic_resample
 
 __all__ = [
     "PseudoMeasurement",
@@ -51,7 +50,6 @@ __all__ = [
     "points_from_power_sums",
     "power_sum_moments",
     "power_sums",
-    "systematic_resample",
     "topology",
     "topology_moments",
 ]
