@@ -229,7 +229,7 @@ def test_cache_is_deterministic_and_reused(recording: Recording, cache, tiny: su
     def refuse(*_: object) -> None:
         raise AssertionError("simulated although the traffic is cached")
 
-    monkeypatch.setattr(sumo, "simulate_traffic", refuse)
+    monkeypatch.setattr(sumo.cache, "simulate_traffic", refuse)  # where `traffic` looks it up
     _assert_same(recording, sumo.generate(tiny, np.random.default_rng([seed, 80])))
     other = dataclasses.replace(tiny, sensing_range=30.0, gnss_position_std=(1.0, 2.0, 3.0))
     assert sumo.cache_key(other, 1) == sumo.cache_key(tiny, 1)
@@ -259,7 +259,7 @@ def test_traci_fallback_gives_the_same_traffic(cache, tiny: sumo.SumoParams,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
     in_process = sumo.simulate_traffic(tiny, 4)
     monkeypatch.setitem(sys.modules, "libsumo", None)  # no libsumo: SUMO runs as a subprocess
-    assert sumo._simulator().__name__ == "traci"
+    assert sumo.simulation._simulator().__name__ == "traci"
     subprocess_run = sumo.simulate_traffic(tiny, 4)
     np.testing.assert_array_equal(in_process.vehicle_states, subprocess_run.vehicle_states)
     np.testing.assert_array_equal(in_process.pedestrian_states, subprocess_run.pedestrian_states)

@@ -1,0 +1,122 @@
+"""Parameters of the `sumo-*` family and its fixed conventions (networks, id ranges).
+
+`SumoParams` holds every setting of a run: what SUMO simulates (network, regulation,
+demand, timing — the `TRAFFIC_KEYS`, which also key the traffic cache), where the
+static features go, and the sensors laid on top. Defaults are Brambilla et al. 2020
+§VI-A where the paper states them (T_s = 0.75 s, GNSS zones A/B/C with σ_p = 3, 8,
+15 m and σ_v = 0.1, 0.17, 0.45 m/s, fast-start prior 2 m / 0.1 m/s, 64 static
+features, σ^(V2F) = 0.1 m and 0.1 m/s, R_s = 50 m) and §V (R_c = 250 m); the rest
+are our choices, listed in `cooploc.scenarios.sumo`.
+
+Ids of one recording never collide: vehicles keep their randomTrips trip number
+(below `STATIC_FEATURE_ID_OFFSET`), static features count up from
+`STATIC_FEATURE_ID_OFFSET`, pedestrians are their trip number plus
+`PEDESTRIAN_ID_OFFSET`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from cooploc.params import Params, param
+
+__all__ = [
+    "GRID",
+    "NETWORKS",
+    "PEDESTRIAN_ID_OFFSET",
+    "REGULATIONS",
+    "STATIC_FEATURE_ID_OFFSET",
+    "TRAFFIC_KEYS",
+    "SumoParams",
+]
+
+#: real-city networks shipped by eclipse-sumo under sumo/tools/game/: name → (folder, file, city)
+NETWORKS: dict[str, tuple[str, str, str]] = {
+    "braunschweig": ("bs3d", "bs.net.xml", "Braunschweig (Germany), city centre"),
+    "berlin": ("DRT", "osm.net.xml", "Berlin-Adlershof (Germany)"),
+}
+GRID = "grid"
+REGULATIONS = ("tlr", "vsr")
+STATIC_FEATURE_ID_OFFSET = 1_000_000
+PEDESTRIAN_ID_OFFSET = 2_000_000
+_THREE_ZONES = "be three positive numbers (zones A, B, C)"
+
+
+@dataclass(frozen=True)
+class SumoParams(Params):
+    """Parameters of a SUMO traffic run; defaults follow Brambilla 2020 §VI where it says.
+
+    Attributes
+    ----------
+    network : ``"grid"`` (netgenerate, for tests) or a name of `NETWORKS`.
+    regulation : ``"tlr"`` (traffic lights) or ``"vsr"`` (unregulated priority junctions).
+    grid_size, grid_length : junctions per side and block length (m) of the grid network.
+    area_half_width : half-width (m) of the square study area a real network is cut to.
+    duration : recorded time (s); n_steps = round(duration / dt).
+    warmup : simulated time (s) before recording starts.
+    dt : SUMO step = scenario step (s) (paper: T_s = 0.75 s).
+    vehicle_period, pedestrian_period : mean time (s) between two trips (0: no pedestrians).
+    fringe_factor : how much trips favour the network fringe (randomTrips).
+    traffic_seed : -1 draws the traffic seed from the run's generator; >= 0 fixes it.
+    pole_spacing : distance (m) between poles along a road.
+    min_feature_spacing : smallest distance (m) between two static features.
+    max_static_features : at most this many static features (paper: 64).
+    zone_radii : (C, B) radii (m) of the GNSS zones around the centre; A beyond.
+    gnss_position_std, gnss_velocity_std : σ_p (m), σ_v (m/s) in zones (A, B, C).
+    v2f_position_std, v2f_velocity_std : σ_p, σ_v of V2F relative measurements.
+    sensing_range : R_s (m). communication_range : R_c (m).
+    detection_probability, clutter_rate : P_D and Poisson clutter per vehicle and step.
+    vehicle_noise_density, feature_noise_density : r (m²/s³) of the CV models given
+        to the estimators.
+    prior_position_std, prior_velocity_std : fast-start prior of step-0 vehicles.
+    birth_position_std, birth_velocity_std : `Setup.birth_cov` of entering vehicles.
+    """
+
+    network: str = param(GRID, choices=(GRID, *NETWORKS))
+    regulation: str = param("tlr", choices=REGULATIONS)
+    grid_size: int = param(3, ge=2)
+    grid_length: float = param(100.0, gt=0)
+    area_half_width: float = param(500.0, gt=0)
+    duration: float = param(300.0, gt=0)
+    warmup: float = param(120.0, ge=0)
+    dt: float = param(0.75, gt=0)
+    vehicle_period: float = param(2.0, gt=0)
+    pedestrian_period: float = param(10.0, ge=0)
+    fringe_factor: float = param(10.0, gt=0)
+    traffic_seed: int = param(-1, ge=-1)
+    pole_spacing: float = param(60.0, gt=0)
+    min_feature_spacing: float = param(20.0, gt=0)
+    max_static_features: int = param(64, ge=0)
+    zone_radii: tuple[float, float] = param((150.0, 300.0), length=2, gt=0,
+                                            must="be (r_C, r_B) with 0 < r_C <= r_B")
+    gnss_position_std: tuple[float, float, float] = param((3.0, 8.0, 15.0), length=3, gt=0,
+                                                          must=_THREE_ZONES)
+    gnss_velocity_std: tuple[float, float, float] = param((0.1, 0.17, 0.45), length=3, gt=0,
+                                                          must=_THREE_ZONES)
+    v2f_position_std: float = param(0.1, gt=0)
+    v2f_velocity_std: float = param(0.1, gt=0)
+    sensing_range: float = param(50.0, gt=0)
+    communication_range: float = param(250.0, gt=0)
+    detection_probability: float = param(1.0, gt=0, le=1)
+    clutter_rate: float = param(0.0, ge=0)
+    vehicle_noise_density: float = param(2.0, gt=0)
+    feature_noise_density: float = param(0.05, gt=0)
+    prior_position_std: float = param(2.0, gt=0)
+    prior_velocity_std: float = param(0.1, gt=0)
+    birth_position_std: float = param(100.0, gt=0)
+    birth_velocity_std: float = param(10.0, gt=0)
+
+    def validate(self) -> None:
+        self.require(self.duration >= self.dt, "duration", f"be >= dt = {self.dt}")
+        self.require(self.zone_radii[0] <= self.zone_radii[1], "zone_radii",
+                     "be (r_C, r_B) with 0 < r_C <= r_B")
+
+    @property
+    def n_steps(self) -> int:
+        return round(self.duration / self.dt)
+
+
+#: the parameters that change the SUMO run or the feature geometry (the cache key)
+TRAFFIC_KEYS = ("network", "regulation", "grid_size", "grid_length", "area_half_width", "duration",
+                "warmup", "dt", "vehicle_period", "pedestrian_period", "fringe_factor",
+                "pole_spacing", "min_feature_spacing", "max_static_features")
