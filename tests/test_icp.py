@@ -18,7 +18,8 @@ import pytest
 from scipy import stats
 
 from cooploc.estimators import get_estimator, make_estimator
-from cooploc.estimators.icp import _group_births, relative_message
+from cooploc.estimators.icp import relative_message
+from cooploc.estimators.icp.data_association import _group_births
 from cooploc.experiment import ExperimentConfig, run_experiment
 from cooploc.gaussian import Gaussians, to_information
 from cooploc.results import summarize

@@ -21,14 +21,9 @@ import pytest
 
 from cooploc.errors import ConfigError
 from cooploc.estimators import make_estimator
-from cooploc.estimators.plbp import (
-    PLBPParams,
-    _aoa_joint_slr,
-    _linearize_reference,
-    gaussian_bp,
-    iteration_errors,
-    link_factors,
-)
+from cooploc.estimators.plbp import PLBPParams, gaussian_bp, iteration_errors, link_factors
+from cooploc.estimators.plbp._kernels import aoa_joint_slr
+from cooploc.estimators.plbp.linearization import _linearize_reference
 from cooploc.gaussian import Gaussians
 from cooploc.geometry import wrap_angle
 from cooploc.motion import RandomWalk
@@ -123,7 +118,7 @@ def test_fused_linearization_equals_the_general_slr(method: str, rng: np.random.
         want = _linearize_reference((mu_a, cov_a, mu_b, cov_b), prev, z, AngleOfArrival(
             default_cov=np.array([[0.1]])), method)
         args = prev if prev is not None else (previous[0] * 0, previous[1] * 0, previous[2])
-        got = _aoa_joint_slr(mu_a, cov_a, mu_b, cov_b, *args, prev is not None, z, index, w0)
+        got = aoa_joint_slr(mu_a, cov_a, mu_b, cov_b, *args, prev is not None, z, index, w0)
         for g, w in zip(got, want, strict=True):
             np.testing.assert_allclose(g, w, rtol=KERNEL_RTOL, atol=KERNEL_RTOL * np.abs(w).max())
 

@@ -1,0 +1,243 @@
+"""`icp-da-lc`: ICP with BP data association at each vehicle and MAP pairing (low complexity).
+
+Paper: Brambilla et al. 2020 (`papers/003_dd51a52f1e371d91.txt`), §IV-A/B and §IV-D.
+
+Model: that of `icp` (§II, eqs. 1, 3, 4), with V2F rows of unknown origin: each
+vehicle's rows are a set O_i, each feature is detected with probability P_D, and a
+row no tracked feature explains starts a new feature.
+
+Algorithm per step, at every agent i, before the Gaussian BPA-L of `icp`:
+
+1. (13) the association likelihood of row ℓ and track k with Gaussian beliefs:
+   η(α_ik = ℓ) = N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), from i's prior b_i^(0) and its
+   predicted copy of the track (12);
+2. BPA-DA (14)–(17), P iterations over the tracks i holds (`association.bp_association`,
+   Williams & Lau), batched over agents; the new-feature hypothesis takes the role of
+   clutter, with intensity `new_feature_intensity`;
+3. (30) a track with b(α = 0) < η_TH is detected and paired with its most probable
+   row; a row wanted by two tracks goes to the more probable pairing;
+4. births: an unclaimed row whose new-feature probability is at least ½ starts a
+   feature; the other unclaimed rows are discarded (`info["v2f_discarded"]`).
+
+Births are agreed without a coordinator: each candidate's global state g = z + m_i
+(covariance R + P_i) is flooded to every agent (N_cons rounds); every agent groups the
+candidates it knows — greedily, closest pairs first, only pairs from different vehicles
+within the χ²(4) gate `BIRTH_GATE`, at most one row per vehicle in a group — and names
+each group after its first member, with an id every agent computes alike
+(`BIRTH_ID_BASE`). Agents that know the same candidates form the same groups.
+
+Choices the paper leaves open: the birth rule and its gate, P_D of a tracked feature
+(default 0.9; it lets a track out of a vehicle's view be "not detected"), and the
+new-feature intensity. The association uses each vehicle's GNSS-only prior (see the
+defaults of `icp`), not the refined belief.
+
+Cost per step and agent: O(P F W) for the BPA-DA over F tracks and W rows, O(C²) for
+grouping C birth candidates, then that of `icp`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from cooploc.association import (
+    AssociationMarginals,
+    association_weights,
+    bp_association,
+    padded_groups,
+)
+from cooploc.consensus import flood
+from cooploc.errors import ConfigError
+from cooploc.estimators.icp.gaussian_bp import ICP, ICPParams
+from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf
+from cooploc.network import Network
+from cooploc.params import Params, param
+from cooploc.registry import register_estimator
+from cooploc.types import Batch, FloatArray, Frame, IntArray, Setup
+
+__all__ = ["BIRTH_GATE", "BIRTH_ID_BASE", "ICPDALC", "ICPDALCParams"]
+
+
+#: New features get ids BIRTH_ID_BASE + (k << 32) + (agent id << 12) + row of the first
+#: detection (step k, that agent's row index): unique, and the same at every agent.
+BIRTH_ID_BASE = 1 << 40
+#: χ²(4) 99.9 % gate for merging first detections of one new feature by several vehicles.
+BIRTH_GATE = 18.47
+
+
+@dataclass(frozen=True)
+class ICPDALCParams(ICPParams):
+    """Parameters of `icp-da-lc` (those of `icp` plus the association).
+
+    Attributes
+    ----------
+    da_iterations : P, BPA-DA iterations (14)–(16).
+    threshold : η_TH of (30): feature k is detected (paired with its most probable
+        measurement) when b(α = 0) < η_TH; 1 pairs every feature that can be.
+    detection_probability : P_D of a tracked feature in the association model; it is
+        what lets a track that is out of a vehicle's view be "not detected".
+    new_feature_intensity : λ c of a V2F row that starts a new feature (units of the
+        V2F likelihood, 1/(m² (m/s)²) for position-velocity rows): the "clutter"
+        hypothesis of the BPA-DA. A row whose new-feature probability is at least
+        ½ and that no feature claims starts a new feature; other unclaimed rows are
+        discarded (counted in `info["v2f_discarded"]`).
+    """
+
+    da_iterations: int = param(5, ge=1)
+    threshold: float = param(0.5, gt=0, le=1)
+    detection_probability: float = param(0.9, gt=0, lt=1,
+                                         must="lie in (0, 1) (tracks out of view must be missable)")
+    new_feature_intensity: float = param(1e-5, gt=0)
+
+
+@dataclass(frozen=True)
+class _Association:
+    """BPA-DA output of all agents: rows (n, W) padded by `mask`, tracks held (n, F),
+    marginals (None when there was nothing to associate) and each row's new-feature
+    probability (n, W)."""
+
+    row_of: IntArray
+    mask: np.ndarray
+    known: np.ndarray
+    marginals: AssociationMarginals | None
+    p_new: FloatArray
+    log_likelihood: FloatArray | None = None      # (n, F, W) log η(α = ℓ) of eq. (13)
+
+
+@register_estimator
+class ICPDALC(ICP):
+    """`icp-da-lc`: per-vehicle BPA-DA, MAP pairing with threshold, Gaussian BPA-L (Brambilla §IV-D)."""
+
+    name: ClassVar[str] = "icp-da-lc"
+    summary: ClassVar[str] = (
+        "implicit cooperative positioning with BP data association at each vehicle, MAP "
+        "pairing and distributed Gaussian BP + consensus (low complexity)"
+    )
+    Params: ClassVar[type[Params]] = ICPDALCParams
+    needs_truth: ClassVar[bool] = False
+    default_preset: ClassVar[str] = "brambilla-road"
+    names_tracks: ClassVar[bool] = True
+
+    def __init__(self, setup: Setup, params: ICPDALCParams, rng: np.random.Generator) -> None:
+        super().__init__(setup, params, rng)
+
+    def associate(self, frame: Frame, v2f: Batch, prior: Gaussians, network: Network
+                  ) -> tuple[IntArray, dict]:
+        """(13)–(17) and (30) at every agent, then agreement on new features."""
+        p = self.params
+        da = self._bpa_da(v2f, prior, network)
+        track = np.full(len(v2f), -1, dtype=np.int64)
+        claimed = np.zeros(da.mask.shape, dtype=bool)
+        if da.marginals is not None:
+            # (30): a detected track (b(α = 0) < η_TH) takes its most probable row; a row
+            # wanted by two tracks goes to the more probable pairing
+            m = da.marginals
+            best = m.feature.argmax(axis=2)                                  # (n, F)
+            p_best = np.take_along_axis(m.feature, best[..., None], 2)[..., 0]
+            detected = da.known & (m.missed < p.threshold) & (p_best > 0)
+            ai, fk = np.nonzero(detected)
+            order = np.lexsort((-p_best[ai, fk], best[ai, fk], ai))
+            ai, fk = ai[order], fk[order]
+            first = np.ones(ai.size, dtype=bool)
+            first[1:] = (ai[1:] != ai[:-1]) | (best[ai[1:], fk[1:]] != best[ai[:-1], fk[:-1]])
+            ai, fk = ai[first], fk[first]
+            w = best[ai, fk]
+            track[da.row_of[ai, w]] = self.features.ids[fk]
+            claimed[ai, w] = True
+        candidate = da.mask & ~claimed & (da.p_new >= 0.5)
+        discarded = da.mask & ~claimed & ~candidate
+        births, _, _ = self._births(frame.k, network, prior, v2f, da.row_of, candidate)
+        track[da.row_of[candidate]] = births
+        info = {"v2f_track": track, "v2f_discarded": int(discarded.sum()),
+                "births": int(np.unique(births).size)}
+        return track, info
+
+    def _bpa_da(self, v2f: Batch, prior: Gaussians, network: Network) -> _Association:
+        """BPA-DA (13)–(17) of every agent over the tracks it holds, batched over agents."""
+        p = self.params
+        n = network.n_agents
+        rows = np.flatnonzero(np.isin(v2f.sensor, network.agents))
+        owner = np.searchsorted(network.agents, v2f.sensor[rows])
+        index, mask = padded_groups(owner, n)                     # (n, W) rows of each agent
+        row_of = rows[index]
+        copies = self.features
+        known = copies.known()                                     # (n, F) tracks each agent holds
+        if not copies.ids.size or not index.shape[1]:
+            return _Association(row_of, mask, known, None, np.ones(index.shape))
+        # (13): η(α = ℓ) = N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), Gaussian beliefs
+        tracks = from_information(np.where(known[..., None, None], copies.Lam, np.eye(self.d)),
+                                  np.where(known[..., None], copies.eta, 0.0))
+        z, R = v2f.z[row_of], v2f.cov[row_of]                      # (n, W, d), (n, W, d, d)
+        rel = tracks.mean - prior.mean[:, None, :]                 # (n, F, d)
+        S = R[:, None] + prior.cov[:, None, None] + tracks.cov[:, :, None]
+        log_l = gaussian_logpdf(z[:, None] - rel[:, :, None], S)   # (n, F, W)
+        log_psi, log_missed, log_new = association_weights(log_l, p.detection_probability,
+                                                           p.new_feature_intensity)
+        marginals = bp_association(log_psi, log_missed, log_new, p.da_iterations,       # (14)–(17)
+                                   feature_mask=known, measurement_mask=mask)
+        return _Association(row_of, mask, known, marginals, marginals.clutter, log_l)
+
+    def _births(self, k: int, network: Network, prior: Gaussians, v2f: Batch,
+                row_of: IntArray, candidate: np.ndarray) -> tuple[IntArray, FloatArray, FloatArray]:
+        """Ids of the new features started by the candidate rows, agreed by flooding, and
+        the first detection each id is named after (g, P per candidate row).
+
+        Each candidate's global state g = z + m_i (covariance R + P_i) is flooded to
+        every agent (N_cons rounds); every agent then groups the candidates it knows —
+        greedily, closest pairs first, only pairs from different vehicles within the
+        χ²(4) gate, at most one row per vehicle in a group — and names each group after
+        its first member. Agents that know the same candidates form the same groups.
+        """
+        ai, wi = np.nonzero(candidate)                       # in agent order, then row order
+        if ai.size == 0:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, self.d)), np.zeros((0, self.d, self.d))
+        rows = row_of[ai, wi]
+        agent_ids = network.agents[ai]
+        if (agent_ids >= 1 << 20).any() or (wi >= 1 << 12).any() or k >= 1 << 20:
+            raise ConfigError(f"{self.name}: ids for new features need agent ids < 2^20, "
+                              "< 4096 V2F rows per vehicle and < 2^20 steps")
+        ids = BIRTH_ID_BASE + (np.int64(k) << 32) + (agent_ids << 12) + wi
+        g = v2f.z[rows] + prior.mean[ai]
+        P = v2f.cov[rows] + prior.cov[ai]
+        C = ids.size
+        n = network.n_agents
+        have = np.zeros((n, C), dtype=bool)
+        have[ai, np.arange(C)] = True
+        payload = np.zeros((n, C, self.d + self.d * self.d))
+        payload[ai, np.arange(C)] = np.concatenate([g, P.reshape(C, -1)], axis=1)
+        have, _, _ = flood(network, have, payload, self.params.consensus_iterations,
+                           np.broadcast_to(network.agents[:, None], (n, C)))
+        # agents that know the same candidates compute the same grouping once
+        out = np.empty(C, dtype=np.int64)
+        patterns, which = np.unique(have, axis=0, return_inverse=True)
+        which = np.asarray(which).reshape(-1)
+        for pattern_index, pattern in enumerate(patterns):   # few distinct patterns per step
+            members = np.flatnonzero(pattern)
+            names = _group_births(ids[members], agent_ids[members], g[members], P[members])
+            mine = np.flatnonzero(pattern & (which[ai] == pattern_index))
+            out[mine] = names[np.searchsorted(members, mine)]
+        # ids grow with (agent, row), the order of the candidates: a name is found by search
+        lead = np.searchsorted(ids, out)
+        return out, g[lead], P[lead]
+
+
+def _group_births(ids: IntArray, agents: IntArray, g: FloatArray, P: FloatArray) -> IntArray:
+    """Greedy gated grouping of first detections; returns the group id of each candidate."""
+    C = ids.size
+    label = np.arange(C)
+    if C > 1:
+        i, j = np.triu_indices(C, 1)
+        ok = agents[i] != agents[j]
+        i, j = i[ok], j[ok]
+        diff = g[i] - g[j]
+        d2 = np.einsum("pi,pi->p", diff, np.linalg.solve(P[i] + P[j], diff[..., None])[..., 0])
+        keep = d2 < BIRTH_GATE
+        i, j, d2 = i[keep], j[keep], d2[keep]
+        for a, b in zip(i[np.argsort(d2, kind="stable")], j[np.argsort(d2, kind="stable")], strict=True):
+            la, lb = label[a], label[b]
+            if la == lb or np.isin(agents[label == la], agents[label == lb]).any():
+                continue                                     # one row per vehicle and feature
+            label[label == max(la, lb)] = min(la, lb)
+    return ids[label]

@@ -1,0 +1,350 @@
+"""`icp`: implicit cooperative positioning with known association — Gaussian BPA-L with consensus.
+
+Paper: Brambilla et al. 2020 (`papers/003_dd51a52f1e371d91.txt`). `icp` is its
+known-association reference ("ICP with known DA", the paper's ref. [40]): Gaussian
+belief propagation for localization (BPA-L, eqs. 19–22), distributed over the
+vehicles, with the feature beliefs (20) computed by consensus over the V2V network.
+The class also holds what the data-association versions (`icp-da-lc`, `icp-da-pf`)
+build on: every agent's copies of the feature beliefs, their prediction and sharing.
+
+Model (§II): vehicle state x_i = [p; v] with the inertial model (1); GNSS of position
+and velocity (3); V2F relative position and velocity z = x_k − x_i + n (4).
+
+Algorithm per step t, run by every vehicle i (an agent) on its own data and on what
+its neighbours send it through a `Network` (`cooploc.network`):
+
+1. Priors. b_i^(0) is i's own Kalman filter (`gnss-kf`): prediction with (1), update
+   with its GNSS fix (3). i predicts its copy of every feature belief it holds (12);
+   a feature nobody sensed at t−1 has a uniform belief (zero information), as the
+   paper resets it (§IV-B). The feature prior b_k^(0) of the BPA-L is uniform by
+   default (see "What runs by default" below).
+2. Association: `icp` reads the true origin of each V2F row (`Truth.origin`, the only
+   truth it sees); clutter rows are discarded.
+3. BPA-L (19)–(22), iterations n = 1…N, all Gaussian and in information form
+   (Λ = P⁻¹, η = Λ m), so products of messages are sums:
+   - (19) m_{i→k}: i's extrinsic belief B = b_i / m_{k→i} pushed through x_k = x_i + z:
+     Λ = (R + B⁻¹)⁻¹, mean z + B⁻¹ b (`relative_message`).
+   - (20) b_k = b_k^(0) Π_i m_{i→k}: the sum over vehicles Σ_i (Λ_{i→k}, η_{i→k}) is
+     computed by every agent with `consensus.GroupConsensus.sum` (average consensus with
+     Metropolis weights, N_cons rounds, leader-ratio normalisation), then added to the
+     feature prior b_k^(0).
+   - (21) m_{k→i}: the feature's extrinsic belief A = b_k / m_{i→k} pushed through
+     x_i = x_k − z. A may be singular (a feature only i senses, with a uniform prior):
+     Λ = (R + A⁻¹)⁻¹ is evaluated as A − A (A + R⁻¹)⁻¹ A and the mean term as
+     (I + A R)⁻¹ a, both finite for singular A (for A = 0 the message is uniform).
+   - (22) b_i = b_i^(0) Π_k m_{k→i}.
+   The loop stops when no vehicle or feature estimate moved by more than 10 cm and
+   0.1 m/s (paper §V-A) — each agent checks its own estimates and the agents agree by
+   max consensus — or after `max_iterations`.
+4. Every agent gets the new belief of every feature sensed this step (flooding); the
+   refined b_i is reported.
+
+What runs by default, and the paper's recursion. The paper's prediction (11)–(12)
+starts step t from the refined beliefs b^(N) of step t−1. By default (`feedback =
+False`, `feature_memory = False`) neither is fed back: the BPA-L starts every step from
+the GNSS-only filter's b_i^(0) and from a uniform feature prior b_k^(0), so it fuses
+this step's V2F rows only, and the refined b_i is an output, not the next prior. The
+predicted feature copies of step 1 are still kept: the association (13) of the DA
+versions and the particle proposals of `icp-da-pf` use them, the BPA-L does not. The
+two switches add the paper's recursion (`icp` and `icp-da-lc`; `icp-da-pf` ignores
+them):
+- `feedback = True`: the refined b_i becomes the belief of i's own filter, so that
+  the next step's prediction (11) starts from it;
+- `feature_memory = True`: the predicted copy (12) is the feature prior b_k^(0) of (20)
+  instead of the uniform one.
+Why they are off (the same information counted again at every step): docs/icp.md.
+
+The reported feature estimate of each feature is the copy of the agent that holds
+the most information about it (`info["feature_source"]`).
+
+Choices the paper leaves open: N_cons (default 20 rounds), the maximum number of
+BPA-L iterations (default 10), and how an agent learns the number of vehicles the
+consensus average must be multiplied by — here the leader-ratio consensus, which
+needs no count.
+
+Cost per step and agent: O(N_iter N_cons F d²) for F features in view, d = 4.
+`info` holds `messages` and `bytes` sent over V2V this step, `bpa_iterations`.
+Derivation of the messages for singular beliefs: docs/icp.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from cooploc.consensus import GroupConsensus, flood
+from cooploc.errors import ConfigError
+from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
+from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize, to_information
+from cooploc.network import Network
+from cooploc.params import Params, param
+from cooploc.registry import register_estimator
+from cooploc.types import AssociationTruth, Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+
+__all__ = ["ICP", "ICPParams", "relative_message"]
+
+
+@dataclass(frozen=True)
+class ICPParams(Params):
+    """Parameters of the Gaussian ICP estimators.
+
+    Attributes
+    ----------
+    consensus_iterations : N_cons, rounds of each consensus run.
+    max_iterations : cap on BPA-L iterations per step.
+    position_tolerance, velocity_tolerance : BPA-L stops when no estimate moved more
+        (m, m/s; paper: 0.1 and 0.1).
+    feature_memory : False (default): the feature prior b_k^(0) of (20) is uniform at
+        every step, so the BPA-L fuses this step's V2F rows only. True: it is the
+        agent's predicted copy of the feature belief (12), as in the paper.
+    feedback : False (default): every step starts from each vehicle's own GNSS-only
+        filter, and the refined belief is only reported. True: the refined belief
+        replaces the filter's, so that the next prediction (11) starts from it, as in
+        the paper. Why both are off by default: docs/icp.md.
+    """
+
+    consensus_iterations: int = param(20, ge=0)
+    max_iterations: int = param(10, ge=1)
+    position_tolerance: float = param(0.1, gt=0)
+    velocity_tolerance: float = param(0.1, gt=0)
+    feature_memory: bool = False
+    feedback: bool = False
+
+
+def relative_message(A: FloatArray, a: FloatArray, z: FloatArray, R: FloatArray
+                     ) -> tuple[FloatArray, FloatArray]:
+    """Information-form message about y = x + z + n, n ~ N(0, R), from a belief (A, a) of x.
+
+    Λ = (R + A⁻¹)⁻¹ = A − A (A + R⁻¹)⁻¹ A and η = (I + A R)⁻¹ a + Λ z; both are
+    defined for a singular (even zero) A, where the message is uniform. Batched over
+    the leading dimension: A, R (m, d, d), a, z (m, d).
+    """
+    d = A.shape[-1]
+    R_inv = np.linalg.solve(R, np.broadcast_to(np.eye(d), R.shape))
+    Lam = symmetrize(A - A @ np.linalg.solve(A + R_inv, A))
+    eta = np.linalg.solve(np.eye(d) + A @ R, a[..., None])[..., 0] + np.einsum("mij,mj->mi", Lam, z)
+    return Lam, eta
+
+
+def _psd(M: FloatArray) -> FloatArray:
+    """Nearest PSD matrices (eigenvalues clipped at 0): consensus leaves small errors."""
+    w, V = np.linalg.eigh(symmetrize(M))
+    return (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
+
+
+class _FeatureCopies:
+    """Each agent's copy of every feature belief, information form: Λ (n, F, d, d), η (n, F, d)."""
+
+    def __init__(self, d: int) -> None:
+        self.d = d
+        self.agents: IntArray = np.zeros(0, dtype=np.int64)
+        self.ids: IntArray = np.zeros(0, dtype=np.int64)
+        self.Lam = np.zeros((0, 0, d, d))
+        self.eta = np.zeros((0, 0, d))
+
+    def reindex(self, agents: IntArray, ids: IntArray) -> None:
+        """Rows for `agents`, columns for feature `ids`; new ones start with zero information."""
+        Lam = np.zeros((agents.size, ids.size, self.d, self.d))
+        eta = np.zeros((agents.size, ids.size, self.d))
+        ia = np.flatnonzero(np.isin(agents, self.agents))
+        ja = np.searchsorted(self.agents, agents[ia])
+        jf = np.flatnonzero(np.isin(ids, self.ids))
+        kf = np.searchsorted(self.ids, ids[jf])
+        if ia.size and jf.size:
+            Lam[np.ix_(ia, jf)] = self.Lam[np.ix_(ja, kf)]
+            eta[np.ix_(ia, jf)] = self.eta[np.ix_(ja, kf)]
+        self.agents, self.ids, self.Lam, self.eta = agents, ids, Lam, eta
+
+    def known(self) -> np.ndarray:
+        """(n, F) which copies hold any information."""
+        return np.trace(self.Lam, axis1=-2, axis2=-1) > 0
+
+
+@register_estimator
+class ICP:
+    """`icp`: Gaussian BPA-L with consensus, known association (Brambilla ref. [40])."""
+
+    name: ClassVar[str] = "icp"
+    summary: ClassVar[str] = (
+        "implicit cooperative positioning with KNOWN association (reads Truth.origin), "
+        "distributed Gaussian BP + consensus — Brambilla 2020's bound"
+    )
+    Params: ClassVar[type[Params]] = ICPParams
+    needs_truth: ClassVar[bool] = True
+    default_preset: ClassVar[str] = "brambilla-road"
+    #: whether `info["v2f_track"]` names the estimator's own feature tracks (DA versions)
+    names_tracks: ClassVar[bool] = False
+
+    def __init__(self, setup: Setup, params: ICPParams, rng: np.random.Generator, *,
+                 truth: AssociationTruth | None = None) -> None:
+        self.setup, self.params, self.truth = setup, params, truth
+        self.local = GnssKF(setup, GnssKFParams(), rng)   # step 1: each vehicle's own filter
+        layout = setup.vehicle_layout
+        self.d = layout.dim
+        self.features = _FeatureCopies(self.d)
+        self._position = list(layout.position)
+        self._velocity = list(layout.velocity or ())
+        sensor = setup.sensors.get("v2f")
+        self._H = None if sensor is None else sensor.observation_matrix(self.d)
+        if self._H is not None and self._H.shape[0] != self.d:
+            raise ConfigError(f"{self.name} needs V2F rows of the full relative state (eq. 4): the "
+                              f"v2f sensor measures {self._H.shape[0]} of {self.d} components")
+
+    # -- hooks -----------------------------------------------------------------------------
+    def associate(self, frame: Frame, v2f: Batch, prior: Gaussians, network: Network
+                  ) -> tuple[IntArray, dict]:
+        """The feature (track) id of every V2F row (−1: discard) and diagnostics for `info`."""
+        origin = np.asarray(self.truth.origin[frame.k].get("v2f", np.zeros(0, np.int64)))
+        return origin.astype(np.int64), {}
+
+    # -- one step --------------------------------------------------------------------------
+    def step(self, frame: Frame) -> Estimate:
+        local = self.local.step(frame)                       # b_i^(0): prediction + GNSS (11)
+        agents, prior = local.vehicles.ids, Gaussians(local.vehicles.mean, local.vehicles.cov)
+        network = Network(agents, frame.links)
+        self._predict_tracks(agents)                         # (12), for association and BPA-L
+        v2f = frame.batches.get("v2f")
+        info: dict = {}
+        track = np.full(0 if v2f is None else len(v2f), -1, dtype=np.int64)
+        if v2f is not None and len(v2f) and agents.size:
+            track, info = self.associate(frame, v2f, prior, network)
+        elif self.names_tracks:
+            info = {"v2f_track": track, "v2f_discarded": 0, "births": 0}
+        rows = np.flatnonzero((track >= 0) & np.isin(v2f.sensor, agents)) if track.size else track
+        if rows.size:
+            self.features.reindex(agents, np.union1d(self.features.ids, track[rows]))
+        posterior, iterations = self._bpa_l(network, agents, prior, v2f, rows, track)
+        if self.params.feedback:
+            self.local.vehicles.beliefs = posterior
+        info.update(network.counters())
+        info["bpa_iterations"] = iterations
+        return Estimate(StateSet(agents, posterior.mean, posterior.cov), self._feature_estimates(info), info)
+
+    def _predict_tracks(self, agents: IntArray) -> None:
+        """(12): every agent predicts its copies; agents that left drop theirs, new ones start empty."""
+        self.features.reindex(agents, self.features.ids)
+        known = self.features.known()
+        if not known.any() or self.setup.feature_motion is None:
+            return
+        motion = self.setup.feature_motion
+        Lam, eta = self.features.Lam[known], self.features.eta[known]
+        belief = from_information(Lam + 1e-12 * np.eye(self.d), eta)
+        Q = motion.noise_covariance(self.setup.dt, belief.mean)
+        predicted = kf_predict(belief, motion.transition_matrix(self.setup.dt), Q)
+        self.features.Lam[known], self.features.eta[known] = to_information(predicted)
+
+    def _bpa_l(self, network: Network, agents: IntArray, prior: Gaussians, v2f: Batch | None,
+               rows: IntArray, slot_ids: IntArray) -> tuple[Gaussians, int]:
+        """BPA-L (19)–(22) until estimates settle; returns the vehicles' posterior and iterations."""
+        if rows.size == 0:
+            self._share_tracks(network, self.features.Lam, self.features.eta,
+                               np.zeros(self.features.Lam.shape[:2], dtype=bool))
+            return prior, 0
+        p = self.params
+        n, F, d = agents.size, self.features.ids.size, self.d
+        Lam0, eta0 = to_information(prior)                               # b_i^(0)
+        if p.feature_memory:                                              # b_k^(0), eq. (12)
+            feat_Lam0, feat_eta0 = self.features.Lam.copy(), self.features.eta.copy()
+        else:                                                             # uniform (module doc)
+            feat_Lam0, feat_eta0 = np.zeros((n, F, d, d)), np.zeros((n, F, d))
+        agent = np.searchsorted(agents, v2f.sensor[rows])
+        slot = np.searchsorted(self.features.ids, slot_ids[rows])
+        z, R = v2f.z[rows], v2f.cov[rows]
+        senses = np.zeros((n, F), dtype=bool)       # the consensus group of each feature
+        senses[agent, slot] = True
+        feature_groups = GroupConsensus(network, senses, p.consensus_iterations)
+        everyone = GroupConsensus(network, None, p.consensus_iterations)
+        m = rows.size
+        to_vehicle = (np.zeros((m, d, d)), np.zeros((m, d)))            # m_{k→i}, uniform at n = 0
+        Lam_v, eta_v = Lam0, eta0
+        feat_Lam, feat_eta = feat_Lam0, feat_eta0
+        last_v, last_f = prior.mean, self._feature_means(feat_Lam, feat_eta)
+        iterations = 0
+        for iterations in range(1, p.max_iterations + 1):  # noqa: B007 — reported below
+            # (19) vehicle → feature, from i's extrinsic belief
+            B = Lam_v[agent] - to_vehicle[0]
+            b = eta_v[agent] - to_vehicle[1]
+            to_feature = relative_message(B, b, z, R)
+            # (20) Σ_i over the vehicles sensing k, by consensus at every agent
+            local_Lam = np.zeros((n, F, d, d))
+            local_eta = np.zeros((n, F, d))
+            np.add.at(local_Lam, (agent, slot), to_feature[0])
+            np.add.at(local_eta, (agent, slot), to_feature[1])
+            payload = np.concatenate([local_Lam.reshape(n, F, -1), local_eta], axis=2)
+            total = feature_groups.sum(payload)
+            feat_Lam = feat_Lam0 + total[..., : d * d].reshape(n, F, d, d)
+            feat_eta = feat_eta0 + total[..., d * d:]
+            # (21) feature → vehicle, from the agent's copy of the feature's extrinsic belief
+            A = _psd(feat_Lam[agent, slot] - to_feature[0])
+            a = feat_eta[agent, slot] - to_feature[1]
+            to_vehicle = relative_message(A, a, -z, R)
+            # (22) b_i = b_i^(0) Π_k m_{k→i}
+            Lam_v = Lam0.copy()
+            eta_v = eta0.copy()
+            np.add.at(Lam_v, agent, to_vehicle[0])
+            np.add.at(eta_v, agent, to_vehicle[1])
+            now_v = np.linalg.solve(Lam_v, eta_v[..., None])[..., 0]
+            now_f = self._feature_means(feat_Lam, feat_eta)
+            moved = np.maximum(self._moved(now_v, last_v), self._moved(now_f, last_f).max(axis=1, initial=0))
+            last_v, last_f = now_v, now_f
+            still = everyone.maximum(moved.astype(np.int64))
+            if not still.any():
+                break
+        self._share_tracks(network, symmetrize(feat_Lam), feat_eta, senses)
+        return from_information(Lam_v, eta_v), iterations
+
+    def _share_tracks(self, network: Network, Lam: FloatArray, eta: FloatArray, senses: np.ndarray) -> None:
+        """Every agent gets the new belief of every feature sensed this step; the rest are reset.
+
+        The members of a feature's group hold its consensus belief; it is flooded
+        (`consensus.flood`, N_cons rounds, the highest-id member's copy wins) to the other
+        agents, who need it to associate their detections later. A feature that nobody
+        in an agent's reach sensed is reset to uniform there (paper §IV-B): its column
+        is dropped once no agent holds it.
+        """
+        n, F, d = Lam.shape[0], Lam.shape[1], self.d
+        payload = np.concatenate([Lam.reshape(n, F, d * d), eta], axis=2)
+        owner = np.broadcast_to(network.agents[:, None], (n, F))
+        have, payload, _ = flood(network, senses, payload, self.params.consensus_iterations, owner)
+        self.features.Lam = np.where(have[..., None, None], payload[..., : d * d].reshape(n, F, d, d), 0.0)
+        self.features.eta = np.where(have[..., None], payload[..., d * d:], 0.0)
+        keep = have.any(axis=0)
+        if not keep.all():
+            self.features.reindex(self.features.agents, self.features.ids[keep])
+
+    def _moved(self, now: FloatArray, before: FloatArray) -> np.ndarray:
+        """Whether an estimate moved more than the tolerances (…, d) → (…,)."""
+        p = self.params
+        dp = np.linalg.norm(now[..., self._position] - before[..., self._position], axis=-1)
+        moved = dp > p.position_tolerance
+        if self._velocity:
+            dv = np.linalg.norm(now[..., self._velocity] - before[..., self._velocity], axis=-1)
+            moved |= dv > p.velocity_tolerance
+        return moved
+
+    def _feature_means(self, Lam: FloatArray, eta: FloatArray) -> FloatArray:
+        """Means of the copies that hold information (zeros elsewhere)."""
+        known = np.trace(Lam, axis1=-2, axis2=-1) > 0
+        out = np.zeros(eta.shape)
+        if known.any():
+            out[known] = np.linalg.solve(Lam[known] + 1e-12 * np.eye(self.d), eta[known][..., None])[..., 0]
+        return out
+
+    def _feature_estimates(self, info: dict) -> StateSet:
+        copies = self.features
+        if copies.ids.size == 0 or copies.agents.size == 0:
+            info["feature_source"] = {}
+            return StateSet.empty(self.d)
+        strength = np.trace(copies.Lam, axis1=-2, axis2=-1)               # (n, F)
+        best = strength.argmax(axis=0)
+        cols = np.arange(copies.ids.size)
+        Lam, eta = copies.Lam[best, cols], copies.eta[best, cols]
+        ok = np.linalg.eigvalsh(symmetrize(Lam))[:, 0] > 0                 # only proper beliefs
+        info["feature_source"] = {int(f): int(copies.agents[a]) for f, a in
+                                  zip(copies.ids[ok], best[ok], strict=True)}
+        if not ok.any():
+            return StateSet.empty(self.d)
+        belief = from_information(Lam[ok], eta[ok])
+        return StateSet(copies.ids[ok], belief.mean, belief.cov)

@@ -1,0 +1,292 @@
+"""`icp-da-pf`: ICP with soft BP data association and particle BPA-L with log-likelihood consensus.
+
+Paper: Brambilla et al. 2020 (`papers/003_dd51a52f1e371d91.txt`), §IV-C, eqs. (18),
+(23)–(29).
+
+Model: that of `icp-da-lc` (unknown V2F origin, P_D, births). The association (13)–(17)
+and the births are those of `icp-da-lc`; instead of the MAP pairing (30), every
+pairing with probability at least `min_association` enters the localization likelihood
+(18), and the BPA-L runs on particles.
+
+Algorithm per step:
+
+1. (23) vehicle particles s_v: J samples of each agent's Gaussian b_i^(0) (the GNSS-only
+   filter). (24) feature particles s_f: J samples of an importance proposal — the
+   agent's copy of the track, or a new feature's first detection — widened by
+   `proposal_inflation` and `proposal_floor`, drawn with generators every agent seeds
+   alike (one per step and feature), so that all agents hold the same particles
+   (§IV-C, after eq. 27); the weights divide by the proposal density.
+2. (18) per vehicle–feature pair, g(f, v) = P(α = 0) + Σ_ℓ P(α = ℓ) N(z_ℓ; s_f − s_v,
+   R_ℓ + h² Σ) / η(α = ℓ): every term divided by the predicted likelihood (13) the
+   marginals were computed with, so that the "not detected" term is on the same scale
+   (cf. Meyer et al. 2018, Proc. IEEE, eq. 49); the pair kernel is
+   `particles.pair_kernel`.
+3. BPA-L over particle weights: (25)–(26) m_{i→k}(s_f) ∝ Σ_v w_i^ext(v) g(f, v) from the
+   extrinsic vehicle weights; (28)–(29) Σ_i log m_{i→k} by average consensus over the
+   vehicles sensing k, then max consensus so that all agree; (27) m_{k→i}(s_v) ∝
+   Σ_f w_k^ext(f) g(f, v); b_i ∝ Π_k m_{k→i}. It stops when no vehicle estimate moved
+   more than the tolerances (agreed by max consensus), or after `max_iterations`.
+4. The weighted moments of the particle beliefs are the Gaussian beliefs reported and
+   shared as the agents' feature copies (no resampling: the next step samples afresh).
+
+Choices the paper leaves open: the proposal of (24) (the paper propagates last step's
+particles), the kernel widening h² Σ (h² Silverman's bandwidth times
+`kernel_bandwidth`, Silverman 1986 eq. 4.14; Σ the sample covariance of the vehicle
+particles plus the feature proposal's before inflation) — without it the V2F noise, far
+below the spread of the beliefs, leaves almost no particle pair inside the kernel — and
+J (default 500; paper 5000). The `feedback` and `feature_memory` switches of `icp` are
+not used: every step starts from the GNSS-only filter and a uniform feature prior.
+
+Cost per step: the pair kernel O(B J² d) for B soft pairings, then per BPA-L iteration
+O(J²) per vehicle–feature pair and O(N_cons F J) per agent for the consensus
+(`benchmarks/icp.py` times it against J). `info` adds `v2f_track` (the MAP origin of
+each row), `v2f_discarded` and `births`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from cooploc.consensus import GroupConsensus
+from cooploc.estimators.icp.data_association import ICPDALC, ICPDALCParams
+from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf, to_information
+from cooploc.network import Network
+from cooploc.params import Params, param
+from cooploc.particles import (
+    Particles,
+    effective_sample_size,
+    normalize_log_weights,
+    pair_kernel,
+    sample_gaussians,
+    weighted_moments,
+)
+from cooploc.registry import register_estimator
+from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+
+__all__ = ["ICPDAPF", "ICPDAPFParams"]
+
+
+@dataclass(frozen=True)
+class ICPDAPFParams(ICPDALCParams):
+    """Parameters of `icp-da-pf` (those of `icp-da-lc`, whose `threshold`, `feedback` and
+    `feature_memory` it does not use).
+
+    Attributes
+    ----------
+    n_particles : J_v = J_f, particles per vehicle and per feature (paper: 5000; the
+        pair kernel costs J² per vehicle–feature pair, see the module doc).
+    proposal_inflation : feature particles are drawn from the feature's last belief
+        with its standard deviations times this factor (an importance proposal; the
+        weights correct for it).
+    min_association : soft pairings (18) with a smaller probability are left out.
+    kernel_bandwidth : multiplier of Silverman's bandwidth with which the pair kernel is
+        widened (0: the bare V2F noise, as the paper).
+    proposal_floor : standard deviations (m, m/s) added to the feature proposal.
+    """
+
+    n_particles: int = param(500, ge=2)
+    proposal_inflation: float = param(2.0, ge=1)
+    min_association: float = param(1e-3, ge=0, lt=1)
+    kernel_bandwidth: float = param(1.0, ge=0)
+    proposal_floor: tuple[float, float] = param((1.0, 0.1), length=2, ge=0,
+                                                must="be two standard deviations >= 0 (m, m/s)")
+
+
+@register_estimator
+class ICPDAPF(ICPDALC):
+    """`icp-da-pf`: BPA-DA, soft-association particle BPA-L with log-likelihood consensus (§IV-C)."""
+
+    name: ClassVar[str] = "icp-da-pf"
+    summary: ClassVar[str] = (
+        "implicit cooperative positioning with BP data association and particle BP: "
+        "log-likelihood average + max consensus on feature particle weights"
+    )
+    Params: ClassVar[type[Params]] = ICPDAPFParams
+    needs_truth: ClassVar[bool] = False
+    default_preset: ClassVar[str] = "brambilla-road"
+
+    def __init__(self, setup: Setup, params: ICPDAPFParams, rng: np.random.Generator) -> None:
+        super().__init__(setup, params, rng)
+        self._rng = rng
+        # the agents' synchronised generators: one seed every agent knows, so that all of
+        # them draw the same particles for a feature (paper §IV-C, after eq. (27))
+        self._shared_seed = int(rng.integers(2**62))
+
+    def step(self, frame: Frame) -> Estimate:
+        local = self.local.step(frame)                              # b_i^(0), (11) / (23)
+        agents, prior = local.vehicles.ids, Gaussians(local.vehicles.mean, local.vehicles.cov)
+        network = Network(agents, frame.links)
+        self._predict_tracks(agents)                                # (12) / (24)
+        v2f = frame.batches.get("v2f")
+        info: dict = {"v2f_track": np.full(0 if v2f is None else len(v2f), -1, dtype=np.int64),
+                      "v2f_discarded": 0}
+        posterior, iterations = prior, 0
+        if v2f is not None and len(v2f) and agents.size:
+            posterior, iterations = self._particle_step(frame, v2f, prior, network, info)
+        else:
+            self._share_tracks(network, self.features.Lam, self.features.eta,
+                               np.zeros(self.features.Lam.shape[:2], dtype=bool))
+        info.update(network.counters())
+        info["bpa_iterations"] = iterations
+        return Estimate(StateSet(agents, posterior.mean, posterior.cov), self._feature_estimates(info), info)
+
+    def _particle_step(self, frame: Frame, v2f: Batch, prior: Gaussians, network: Network,
+                       info: dict) -> tuple[Gaussians, int]:
+        p = self.params
+        da = self._bpa_da(v2f, prior, network)
+        n, W = da.mask.shape
+        F = self.features.ids.size
+        # soft pairings (18): agent i, track k, row w with P(α_ik = w) ≥ min_association
+        if da.marginals is not None:
+            feat_p = np.where(da.known[..., None] & da.mask[:, None, :], da.marginals.feature, 0.0)
+            pi, pk, pw = np.nonzero(feat_p >= max(p.min_association, 1e-300))
+            p_assoc = feat_p[pi, pk, pw]
+            log_eta = da.log_likelihood[pi, pk, pw]
+            claimed = da.marginals.measurement.max(axis=2, initial=0.0) >= 0.5
+        else:
+            pi = pk = pw = np.zeros(0, dtype=np.int64)
+            p_assoc = log_eta = np.zeros(0)
+            claimed = np.zeros((n, W), dtype=bool)
+        candidate = da.mask & ~claimed & (da.p_new >= 0.5)
+        births, birth_g, birth_P = self._births(frame.k, network, prior, v2f, da.row_of, candidate)
+        # the MAP origin of each row, for association accuracy
+        track = np.full(len(v2f), -1, dtype=np.int64)
+        if da.marginals is not None:
+            meas = da.marginals.measurement                        # (n, W, F)
+            best = meas.argmax(axis=2) if F else np.zeros((n, W), dtype=np.int64)
+            p_best = np.take_along_axis(meas, best[..., None], 2)[..., 0] if F else np.zeros((n, W))
+            take = da.mask & (p_best > da.p_new)
+            track[da.row_of[take]] = self.features.ids[best[take]]
+        track[da.row_of[candidate]] = births
+        info["v2f_track"] = track
+        info["v2f_discarded"] = int((da.mask & ~claimed & ~candidate & ~(track[da.row_of] >= 0)).sum())
+        info["births"] = int(np.unique(births).size)
+        # the pairs (i, k) of the BP graph: existing tracks with soft rows, plus births
+        ci, cw = np.nonzero(candidate)
+        new_ids = np.unique(births)
+        ids = np.union1d(self.features.ids, new_ids)
+        old_col = np.searchsorted(ids, self.features.ids)
+        self.features.reindex(network.agents, ids)
+        F = ids.size
+        blk_i = np.concatenate([pi, ci])
+        blk_k = np.concatenate([old_col[pk], np.searchsorted(ids, births)])
+        blk_w = np.concatenate([pw, cw])
+        blk_p = np.concatenate([p_assoc, np.ones(ci.size)])
+        blk_log_eta = np.concatenate([log_eta, np.zeros(ci.size)])
+        if blk_i.size == 0:
+            self._share_tracks(network, self.features.Lam, self.features.eta, np.zeros((n, F), dtype=bool))
+            return prior, 0
+        pair_key, blk_pair = np.unique(blk_i * F + blk_k, return_inverse=True)
+        pair_i, pair_k = pair_key // F, pair_key % F
+        # proposals: the agent's copy of the track, or the new feature's first detection
+        prop_mean, prop_cov = self._proposals(pair_i, pair_k, ids, births, birth_g, birth_P)
+        return self._particle_bpa_l(frame, network, prior, v2f, da.row_of, pair_i, pair_k, blk_pair, blk_w,
+                                    blk_p, blk_log_eta, prop_mean, prop_cov, ids)
+
+    def _proposals(self, pair_i: IntArray, pair_k: IntArray, ids: IntArray, births: IntArray,
+                   birth_g: FloatArray, birth_P: FloatArray) -> tuple[FloatArray, FloatArray]:
+        d = self.d
+        mean = np.zeros((pair_i.size, d))
+        cov = np.repeat(np.eye(d)[None], pair_i.size, 0)
+        known = np.trace(self.features.Lam[pair_i, pair_k], axis1=1, axis2=2) > 0
+        if known.any():
+            belief = from_information(self.features.Lam[pair_i[known], pair_k[known]],
+                                      self.features.eta[pair_i[known], pair_k[known]])
+            mean[known], cov[known] = belief.mean, belief.cov
+        if (~known).any():
+            b = np.searchsorted(births, ids[pair_k[~known]]) if births.size else np.zeros(0, np.int64)
+            order = np.argsort(births, kind="stable")
+            src = order[np.minimum(b, max(births.size - 1, 0))]
+            mean[~known], cov[~known] = birth_g[src], birth_P[src]
+        # never narrower than `proposal_floor`: a feature belief that collapsed on few
+        # particles must not starve the next step's proposal
+        floor = np.zeros(d)
+        floor[self._position] = self.params.proposal_floor[0] ** 2
+        floor[self._velocity] = self.params.proposal_floor[1] ** 2
+        return mean, cov * self.params.proposal_inflation**2 + np.diag(floor)
+
+    def _particle_bpa_l(self, frame: Frame, network: Network, prior: Gaussians, v2f: Batch,
+                        row_of: IntArray, pair_i: IntArray, pair_k: IntArray, blk_pair: IntArray,
+                        blk_w: IntArray, blk_p: FloatArray, blk_log_eta: FloatArray, prop_mean: FloatArray,
+                        prop_cov: FloatArray, ids: IntArray) -> tuple[Gaussians, int]:
+        p = self.params
+        J, d = p.n_particles, self.d
+        n, F, Pn = network.n_agents, ids.size, pair_i.size
+        # (23) vehicle particles: each agent samples its own belief b_i^(0)
+        X = sample_gaussians(prior.mean, prior.cov, J, self._rng).samples             # (n, J, d)
+        # (24) feature particles: synchronised generators, one per (step, feature)
+        S = np.empty((Pn, J, d))
+        for q in range(Pn):   # a few pairs per agent; each draw is vectorised over particles
+            gen = np.random.default_rng([self._shared_seed, frame.k, int(ids[pair_k[q]]) & ((1 << 62) - 1)])
+            S[q] = sample_gaussians(prop_mean[q:q + 1], prop_cov[q:q + 1], J, gen).samples[0]
+        log_prop = gaussian_logpdf(S - prop_mean[:, None, :], prop_cov[:, None])         # (P, J)
+        # g_ik(f, v) = P(α = 0) + Σ_ℓ P(α = ℓ) N(z_ℓ; s_f − s_v, R_ℓ) / η(α = ℓ), eq. (18) per
+        # pair; dividing by the predicted likelihood (13) the marginals were computed with
+        # makes every term a likelihood ratio, so that the "not detected" term (eq. 10's 1)
+        # is on the same scale (cf. Meyer et al. 2018, Proc. IEEE, eq. 49)
+        rows = row_of[pair_i[blk_pair], blk_w]
+        # regularised kernel: each particle set stands for a smooth density (Silverman
+        # bandwidth h² Σ, Silverman 1986 eq. 4.14) — without it the V2F noise, far below the
+        # spread of the beliefs, leaves almost no particle pair inside the kernel
+        h2 = p.kernel_bandwidth * (4.0 / ((d + 2) * J)) ** (2.0 / (d + 4))
+        spread = h2 * (_sample_cov(X)[pair_i[blk_pair]] + prop_cov[blk_pair] / p.proposal_inflation**2)
+        kernel = pair_kernel(v2f.z[rows], v2f.cov[rows] + spread, S[blk_pair], X[pair_i[blk_pair]]).dense()
+        G = np.zeros((Pn, J, J))
+        np.add.at(G, blk_pair, (blk_p * np.exp(-blk_log_eta))[:, None, None] * kernel)
+        G += np.maximum(1.0 - np.bincount(blk_pair, weights=blk_p, minlength=Pn), 0.0)[:, None, None]
+        G = np.maximum(G, 1e-300)
+        members = np.zeros((n, F), dtype=bool)
+        members[pair_i, pair_k] = True
+        groups = GroupConsensus(network, members, p.consensus_iterations)
+        everyone = GroupConsensus(network, None, p.consensus_iterations)
+        log_wv = np.zeros((n, J))                                        # b_i over its particles
+        log_kv = np.zeros((Pn, J))                                       # m_{k→i}(s_v)
+        last_v = prior.mean
+        iterations = 0
+        for iterations in range(1, p.max_iterations + 1):  # noqa: B007 — reported below
+            # (25)–(26): m_{i→k}(s_f) ∝ Σ_v w_i^ext(v) g(f, v), the extrinsic vehicle weights
+            ext_v = _softmax(log_wv[pair_i] - log_kv)
+            log_ik = np.log(np.maximum(np.einsum("qfv,qv->qf", G, ext_v), 1e-300))      # (P, J)
+            # (28)–(29): Σ_i log m_{i→k} by average consensus, then max consensus (agreement)
+            payload = np.zeros((n, F, J))
+            payload[pair_i, pair_k] = log_ik
+            q_sum = groups.maximum(groups.sum(payload))
+            log_wf = q_sum[pair_i, pair_k] - log_prop                   # uniform prior, IS weights
+            # (27): m_{k→i}(s_v) ∝ Σ_f w_k^ext(f) g(f, v)
+            ext_f = _softmax(log_wf - log_ik)
+            log_kv = np.log(np.maximum(np.einsum("qfv,qf->qv", G, ext_f), 1e-300))
+            log_kv -= log_kv.max(axis=1, keepdims=True)
+            log_wv = np.zeros((n, J))
+            np.add.at(log_wv, pair_i, log_kv)
+            now_v = np.einsum("nj,njd->nd", _softmax(log_wv), X)
+            moved = self._moved(now_v, last_v)
+            last_v = now_v
+            if not everyone.maximum(moved.astype(np.int64)).any():
+                break
+        vehicles = Particles(X, normalize_log_weights(log_wv)[0])
+        features = Particles(S, normalize_log_weights(log_wf)[0])
+        info_ess = effective_sample_size(vehicles.log_weights)
+        self._last_ess = (float(info_ess.min(initial=J)), float(effective_sample_size(features.log_weights)
+                                                               .min(initial=J)))
+        v_mean, v_cov = weighted_moments(vehicles)
+        f_mean, f_cov = weighted_moments(features)
+        f_Lam, f_eta = to_information(Gaussians(f_mean, f_cov))
+        Lam = np.zeros((n, F, d, d))
+        eta = np.zeros((n, F, d))
+        Lam[pair_i, pair_k], eta[pair_i, pair_k] = f_Lam, f_eta
+        self._share_tracks(network, Lam, eta, members)
+        return Gaussians(v_mean, v_cov), iterations
+
+
+def _sample_cov(samples: FloatArray) -> FloatArray:
+    """Unweighted covariance (n, d, d) of particle sets (n, J, d)."""
+    centred = samples - samples.mean(axis=1, keepdims=True)
+    return np.einsum("njd,nje->nde", centred, centred) / max(samples.shape[1] - 1, 1)
+
+
+def _softmax(log_w: FloatArray) -> FloatArray:
+    """Normalised weights from log-weights along the last axis."""
+    return np.exp(normalize_log_weights(log_w)[0])

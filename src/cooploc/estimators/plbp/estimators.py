@@ -1,0 +1,172 @@
+"""`plbp` and `prior-lbp`: cooperative position and heading estimation from angle of arrival.
+
+Paper: "Cooperative Localization with Angular Measurements and Posterior Linearization"
+(`papers/002_dfdb230c2e4252cd.txt`; equations restated in `papers/plbp_model_notes.md`).
+
+Model: vehicle state x_i = [p_x, p_y, α] (the AoA sensor's `state_indices`), Gaussian
+prior N(μ_i, Σ_i) (eq. 1); AoA rows θ_{i←j} = wrap(atan2(p_j − p_i) − α_i) + w,
+w ~ N(0, σ²_θ) (eqs. 2–5), grouped into one link factor per vehicle pair
+(`plbp.links`). Every frame is one snapshot solved by Algorithm 1 (`plbp.solve`):
+`plbp` relinearizes the links at the current posterior approximation (eq. 10),
+`prior-lbp` linearizes them once at the priors.
+
+Choices the paper leaves open:
+- Tracking (beyond the paper's snapshot): the belief of the previous step is predicted
+  with the scenario's motion model (`RandomWalk` for `aoa-grid`), then updated in
+  information form with that step's `"gnss"` rows (a fresh position/heading fix,
+  angular components moved onto the branch of the prediction); the result is the prior
+  of this step's solve. Vehicles that enter start from `Setup.vehicle_prior` or their
+  first fix (`estimators.base.birth_beliefs`).
+- AoA rows naming a vehicle that is not present are ignored.
+- Output headings are wrapped to [−π, π).
+
+`info["iterate_means"]` (J + 1, n, dx): the beliefs' means before the first and after
+every linearization iteration (heading wrapped), in the order of `Estimate.vehicles`;
+the estimator never sees truth, so per-iteration errors are computed by the caller
+(`iteration_errors`). `info["n_links"]`: the number of link factors.
+
+Complexity per step: that of `plbp_solve`, plus O(n dx³) for prediction and fixes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar, Literal
+
+import numpy as np
+
+from cooploc.errors import ConfigError
+from cooploc.estimators.base import VehicleBeliefs
+from cooploc.estimators.plbp.links import link_factors
+from cooploc.estimators.plbp.solve import plbp_solve
+from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize, to_information
+from cooploc.geometry import wrap_angle
+from cooploc.params import Params, param
+from cooploc.registry import register_estimator
+from cooploc.sensors import AngleOfArrival
+from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+
+__all__ = ["PLBP", "PLBPParams", "PriorLBP", "PriorLBPParams"]
+
+
+@dataclass(frozen=True)
+class PLBPParams(Params):
+    """Parameters of `plbp`.
+
+    Attributes
+    ----------
+    linearization_iterations : J, relinearizations per snapshot (paper: converged by 4).
+    bp_iterations : L, BP iterations per linearization.
+    sigma_points : "unscented" or "cubature".
+    central_weight : w₀ of the unscented points.
+    """
+
+    linearization_iterations: int = param(5, ge=1)
+    bp_iterations: int = param(3, ge=1)
+    sigma_points: Literal["unscented", "cubature"] = "unscented"
+    central_weight: float = param(1.0 / 3.0, ge=0, lt=1)
+
+
+@dataclass(frozen=True)
+class PriorLBPParams(PLBPParams):
+    """Parameters of `prior-lbp` (as `plbp`; the links are linearized once, at the priors)."""
+
+
+@register_estimator
+class PLBP:
+    """Posterior-linearization Gaussian BP over AoA links, one solve per frame."""
+
+    name: ClassVar[str] = "plbp"
+    summary: ClassVar[str] = "AoA cooperative position + heading, posterior-linearization Gaussian BP"
+    Params: ClassVar[type[Params]] = PLBPParams
+    needs_truth: ClassVar[bool] = False
+    default_preset: ClassVar[str] = "aoa-grid"
+    required_sensors: ClassVar[tuple[str, ...]] = ("aoa",)
+    posterior: ClassVar[bool] = True
+
+    def __init__(self, setup: Setup, params: PLBPParams, rng: np.random.Generator) -> None:
+        sensor = setup.sensors.get("aoa")
+        if not isinstance(sensor, AngleOfArrival):
+            raise ConfigError(f"{self.name} needs an 'aoa' sensor (AngleOfArrival) in the setup, "
+                              f"got {sensor!r}")
+        layout = setup.vehicle_layout
+        if layout.heading is None:
+            raise ConfigError(f"{self.name} needs a vehicle layout with a heading, got {layout}")
+        self.setup, self.params, self.sensor = setup, params, sensor
+        self.vehicles = VehicleBeliefs(setup)
+        motion = setup.vehicle_motion
+        self._F = motion.transition_matrix(setup.dt)
+        self._Q = None if motion.state_dependent_noise else motion.noise_covariance(setup.dt)
+        self._heading = layout.heading
+        self._started = False
+
+    def step(self, frame: Frame) -> Estimate:
+        born = self.vehicles.sync(frame)
+        beliefs = self._predict(self.vehicles.beliefs, ~born)
+        self._started = True
+        beliefs = self._fix(beliefs, frame.batches.get("gnss"))
+        links = link_factors(frame.batch("aoa", 1), self.vehicles.ids)
+        p = self.params
+        posterior, iterates = plbp_solve(
+            beliefs, links, self.sensor, linearization_iterations=p.linearization_iterations,
+            bp_iterations=p.bp_iterations, posterior=self.posterior, method=p.sigma_points,
+            central_weight=p.central_weight)
+        mean = posterior.mean.copy()
+        mean[:, self._heading] = wrap_angle(mean[:, self._heading])
+        iterates[..., self._heading] = wrap_angle(iterates[..., self._heading])
+        self.vehicles.beliefs = Gaussians(mean, posterior.cov)
+        info: dict[str, Any] = {"iterate_means": iterates, "n_links": len(links)}
+        return Estimate(StateSet(self.vehicles.ids, mean, posterior.cov), info=info)
+
+    def _predict(self, beliefs: Gaussians, moving: np.ndarray) -> Gaussians:
+        """Prediction with the motion model of every vehicle that was already there."""
+        if not self._started or not moving.any():
+            return beliefs
+        Q = self._Q if self._Q is not None else self.setup.vehicle_motion.noise_covariance(
+            self.setup.dt, beliefs.mean[moving])
+        predicted = kf_predict(beliefs.take(moving), self._F, Q)
+        mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
+        mean[moving], cov[moving] = predicted.mean, predicted.cov
+        return Gaussians(mean, cov)
+
+    def _fix(self, beliefs: Gaussians, gnss: Batch | None) -> Gaussians:
+        """Information-form update with this step's own fixes (tracking): Λ += Hᵀ R⁻¹ H, η += Hᵀ R⁻¹ z̃."""
+        sensor = self.setup.sensors.get("gnss")
+        ids = self.vehicles.ids
+        if gnss is None or len(gnss) == 0 or sensor is None or ids.size == 0:
+            return beliefs
+        pos = np.minimum(np.searchsorted(ids, gnss.subject), ids.size - 1)   # ids are sorted
+        rows = np.flatnonzero(ids[pos] == gnss.subject)
+        if rows.size == 0:
+            return beliefs
+        target = pos[rows]
+        dx = beliefs.mean.shape[1]
+        H = sensor.observation_matrix(dx)
+        z = gnss.z[rows].copy()
+        angular = np.flatnonzero(H[:, self._heading] != 0)          # heading components of the fix
+        prediction = beliefs.mean[target] @ H.T
+        z[:, angular] = prediction[:, angular] + wrap_angle(z[:, angular] - prediction[:, angular])
+        Rinv_H = np.linalg.solve(gnss.cov[rows], np.broadcast_to(H, (rows.size, *H.shape)))
+        Rinv_z = np.linalg.solve(gnss.cov[rows], z[..., None])[..., 0]
+        Lam, eta = to_information(beliefs)
+        n = ids.size
+        Lam = symmetrize(Lam + _scatter(target, H.T @ Rinv_H, n))
+        eta = eta + _scatter(target, Rinv_z @ H, n)
+        return from_information(Lam, eta)
+
+
+@register_estimator
+class PriorLBP(PLBP):
+    """The baseline: the same Gaussian BP, linearized once w.r.t. the priors."""
+
+    name: ClassVar[str] = "prior-lbp"
+    summary: ClassVar[str] = "AoA cooperative position + heading, Gaussian BP linearized at the priors"
+    Params: ClassVar[type[Params]] = PriorLBPParams
+    posterior: ClassVar[bool] = False
+
+
+def _scatter(index: IntArray, values: FloatArray, n: int) -> FloatArray:
+    """Σ of `values` (F, ...) into n slots by `index` (F,)."""
+    out = np.zeros((n, *values.shape[1:]))
+    np.add.at(out, index, values)
+    return out
