@@ -24,6 +24,9 @@ Where registrations come from, in order, the first time a registry is read:
 3. anything registered at run time by calling `register_estimator` /
    `register_scenario` (a plug-in module imported by the user).
 
+`unregister_estimator` / `unregister_scenario` take a registration back (for tests
+and interactive sessions that register throw-away classes).
+
 A plug-in that fails to load is reported with a `PluginWarning` and left out, so that
 one broken package does not take `cooploc` down with it.
 """
@@ -55,6 +58,8 @@ __all__ = [
     "presets",
     "register_estimator",
     "register_scenario",
+    "unregister_estimator",
+    "unregister_scenario",
 ]
 
 ESTIMATOR_GROUP = "cooploc.estimators"
@@ -177,6 +182,45 @@ def register_scenario(family: str, generate: Callable[[Any, np.random.Generator]
         _presets[preset.name] = preset
     claim(next(iter(kinds)), family)
     return registered
+
+
+def _release(params_cls: type[Params], owner: str) -> None:
+    """After `owner` was unregistered: if it named `params_cls`, the name passes to a
+    registration that still uses the class, else the class takes its own name again."""
+    if params_cls.__dict__.get("_owner") != owner:
+        return
+    params_cls._owner = None
+    users = [name for name, cls in _estimators.items() if cls.Params is params_cls] + [
+        p.family for p in _presets.values() if type(p.params) is params_cls]
+    if users:
+        claim(params_cls, users[0])
+
+
+def unregister_estimator(name: str) -> type:
+    """Remove the estimator registered as `name` and return its class.
+
+    Its Params class no longer takes the name for its messages (`_release`). A built-in
+    or plug-in estimator removed this way stays removed for the rest of the process
+    (its module is imported only once).
+    """
+    cls = get_estimator(name)  # refuses an unknown name
+    del _estimators[name]
+    _release(cls.Params, name)
+    return cls
+
+
+def unregister_scenario(family: str) -> tuple[Preset, ...]:
+    """Remove every preset of scenario family `family` and return them (see
+    `unregister_estimator`)."""
+    _load()
+    removed = tuple(p for p in _presets.values() if p.family == family)
+    if not removed:
+        known = sorted({p.family for p in _presets.values()})
+        raise ConfigError(f"unknown scenario family {family!r}; known: {', '.join(known)}")
+    for preset in removed:
+        del _presets[preset.name]
+    _release(type(removed[0].params), family)
+    return removed
 
 
 def _load() -> None:
