@@ -34,7 +34,6 @@ _EXPORTS = {
     "evaluate": "cooploc.metrics",
     "rmse": "cooploc.metrics",
     "Preset": "cooploc.registry",
-    "estimators": "cooploc.registry",
     "get_estimator": "cooploc.registry",
     "get_preset": "cooploc.registry",
     "make_estimator": "cooploc.registry",
@@ -71,7 +70,6 @@ __all__ = [
     "__version__",
     "ecdf",
     "estimate",
-    "estimators",
     "evaluate",
     "get_estimator",
     "get_preset",
@@ -104,7 +102,6 @@ if TYPE_CHECKING:  # what static tools see
     from cooploc.metrics import ecdf, evaluate, rmse
     from cooploc.registry import (
         Preset,
-        estimators,
         get_estimator,
         get_preset,
         make_estimator,

@@ -7,16 +7,12 @@ path holds that folder, so that cooploc finds the plug-in only through its entry
 points. A distribution whose entry points name a missing module must be left out with
 a `PluginWarning`, and must not break the rest.
 
-pip can build the package offline only where setuptools can build a wheel by itself
-(setuptools >= 70.1, or an older one beside the `wheel` package). Elsewhere the fixture
-installs it as pip would lay it out — the package and a ``*.dist-info`` folder with the
-entry points of its pyproject.toml — rather than download a build backend.
+Building offline needs a setuptools that builds wheels by itself (>= 70.1); the ``dev``
+extra asks for one.
 """
 
 from __future__ import annotations
 
-import importlib.metadata
-import importlib.util
 import json
 import math
 import os
@@ -31,23 +27,10 @@ import pytest
 import cooploc
 from cooploc.registry import ESTIMATOR_GROUP, SCENARIO_GROUP
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
-
 pytestmark = pytest.mark.slow
 
 PLUGIN = Path(__file__).resolve().parents[2] / "examples" / "plugin"
 COOPLOC_SRC = Path(cooploc.__file__).resolve().parents[1]  # the cooploc under test
-
-
-def can_build_offline() -> bool:
-    """Whether pip can build a setuptools project here without downloading anything."""
-    if importlib.util.find_spec("setuptools") is None:
-        return False
-    major, minor = (int(x) for x in importlib.metadata.version("setuptools").split(".")[:2])
-    return (major, minor) >= (70, 1) or importlib.util.find_spec("wheel") is not None
 
 
 def write_distribution(site: Path, name: str, version: str,
@@ -62,20 +45,14 @@ def write_distribution(site: Path, name: str, version: str,
     return folder
 
 
-def install(source: Path, site: Path) -> str:
-    """Install the example package from `source` into `site`; says how."""
-    if can_build_offline():
-        subprocess.run(
-            [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-index",
-             "--no-build-isolation", "--no-cache-dir", "--disable-pip-version-check",
-             "--target", str(site), str(source)],
-            check=True, capture_output=True, text=True,
-            env={**os.environ, "PIP_DISABLE_PIP_VERSION_CHECK": "1"})
-        return "pip"
-    project = tomllib.loads((source / "pyproject.toml").read_text())["project"]
-    shutil.copytree(source / "src" / "cooploc_example_plugin", site / "cooploc_example_plugin")
-    write_distribution(site, project["name"], project["version"], project["entry-points"])
-    return "by hand"
+def install(source: Path, site: Path) -> None:
+    """Install the example package from `source` into `site` with pip, offline."""
+    subprocess.run(
+        [sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-index",
+         "--no-build-isolation", "--no-cache-dir", "--disable-pip-version-check",
+         "--target", str(site), str(source)],
+        check=True, capture_output=True, text=True,
+        env={**os.environ, "PIP_DISABLE_PIP_VERSION_CHECK": "1"})
 
 
 @pytest.fixture(scope="module")

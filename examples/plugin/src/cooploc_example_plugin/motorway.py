@@ -124,7 +124,7 @@ def generate(params: MotorwayParams, rng: np.random.Generator) -> Recording:
         description=f"motorway: {n} vehicles on {params.n_lanes} lanes, {T} steps of {dt} s, "
                     f"{params.outlier_probability:.0%} multipath fixes",
     )
-    return Recording(setup, frames, Truth.vehicles_only(ids, states, origins))
+    return Recording(setup, frames, Truth.always_present(ids, states, origins))
 
 
 PRESETS = register_scenario("motorway", generate, [
