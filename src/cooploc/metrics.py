@@ -29,7 +29,8 @@ positions (`optimal_assignment`, minimum summed squared distance,
 association process" (Zhang §4.1). `ospa` scores the sets without labels (Schuhmacher,
 Vo & Vo 2008; cut-off c = `OSPA_CUTOFF` m, order p = `OSPA_ORDER`), and
 `total_rmse` is Zhang's eq. (20): sqrt(mean over steps of the *sum* over vehicles of
-the squared position error).
+the squared position error); `total_rmse_per_run_and_step` gives the same error of the
+whole system per run and per step (Gulati et al. 2017 eq. 21, Table I and Figs. 4/6).
 """
 
 from __future__ import annotations
@@ -72,6 +73,7 @@ __all__ = [
     "score_association",
     "set_errors",
     "total_rmse",
+    "total_rmse_per_run_and_step",
     "track_identities",
 ]
 
@@ -268,6 +270,20 @@ def total_rmse(step: IntArray, err_pos: FloatArray, run: IntArray | None = None)
     _, group = np.unique(np.stack([run, step]), axis=1, return_inverse=True)
     sums = np.bincount(group.ravel(), weights=np.asarray(err_pos, dtype=float) ** 2)
     return float(np.sqrt(sums.mean()))
+
+
+def total_rmse_per_run_and_step(run: IntArray, step: IntArray, err_pos: FloatArray
+                                ) -> tuple[FloatArray, FloatArray]:
+    """Eq. (20) per run (R,) and per step (T,): the error of the whole system.
+
+    With S[r, k] = Σ_vehicles err² of run r (0 … R − 1) at step k (0 … T − 1), zero where
+    no row was scored: per run sqrt(mean_k S[r, k]), per step sqrt(mean_r S[r, k]).
+    """
+    run, step = np.asarray(run, dtype=np.int64), np.asarray(step, dtype=np.int64)
+    shape = (int(run.max()) + 1, int(step.max()) + 1) if step.size else (0, 0)
+    sums = np.zeros(shape)
+    np.add.at(sums, (run, step), np.asarray(err_pos, dtype=float) ** 2)  # Σ over vehicles
+    return np.sqrt(sums.mean(axis=1)), np.sqrt(sums.mean(axis=0))
 
 
 def evaluate(recording: Recording, estimates: Sequence[Estimate]) -> ErrorTable:

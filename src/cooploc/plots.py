@@ -6,6 +6,9 @@
 - `sweep_plot`: trajectory-average RMSE against a swept parameter, one panel per
   vehicle (Fröhle Figs. 4–5); the known-association bound is drawn dashed.
 - `line_panels`: any family of curves, one panel per key (paper figures of other shapes).
+- Pieces of the paper figures: `figure_panels` (a grid of panels under one title),
+  `cdf_step` (an empirical CDF on a panel), `trajectory_panel` (true and estimated
+  paths), `save_figure`.
 - `run_figures` / `run_report`: what `cooploc run` writes beside summary.json.
 """
 
@@ -16,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 
 from cooploc.metrics import VEHICLE, ecdf
 
@@ -25,6 +29,8 @@ if TYPE_CHECKING:
     from cooploc.experiment import ExperimentResult
 
 __all__ = [
+    "cdf_step",
+    "figure_panels",
     "format_number",
     "line_panels",
     "per_run_rmse_cdf",
@@ -32,7 +38,9 @@ __all__ = [
     "rmse_over_time",
     "run_figures",
     "run_report",
+    "save_figure",
     "sweep_plot",
+    "trajectory_panel",
 ]
 
 MAX_PANELS = 6  # more vehicles than this: the first ones are drawn, the pooled RMSE is in the report
@@ -55,22 +63,63 @@ def pyplot() -> Any:
     return plt
 
 
-def _panels(n: int, title: str) -> tuple[Figure, np.ndarray]:
-    cols = min(n, 3)
+def figure_panels(n: int, title: str, cols: int = 3, size: tuple[float, float] = (4.2, 3.3)
+                  ) -> tuple[Figure, np.ndarray]:
+    """A figure of `n` panels (flat array of axes), at most `cols` a row, each `size` inches."""
+    cols = min(n, cols)
     rows = int(np.ceil(n / cols))
-    fig, axes = pyplot().subplots(rows, cols, figsize=(4.2 * cols, 3.3 * rows), squeeze=False)
+    fig, axes = pyplot().subplots(rows, cols, figsize=(size[0] * cols, size[1] * rows), squeeze=False)
     fig.suptitle(title)
     for ax in axes.ravel()[n:]:
         ax.set_visible(False)
     return fig, axes.ravel()
 
 
-def _save(fig: Figure, axes: np.ndarray, path: Path) -> Path:
-    axes[0].legend(fontsize=8)
+def save_figure(fig: Figure, path: Path) -> Path:
+    """Lay out, write (110 dpi) and close the figure."""
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     pyplot().close(fig)
     return path
+
+
+def _save(fig: Figure, axes: np.ndarray, path: Path) -> Path:
+    axes[0].legend(fontsize=8)
+    return save_figure(fig, path)
+
+
+def cdf_step(ax: Any, values: npt.ArrayLike, **style: Any) -> None:
+    """The empirical CDF of `values` on the panel `ax`, as a step curve."""
+    x, p = ecdf(values)
+    ax.step(x, p, where="post", **style)
+
+
+def trajectory_panel(ax: Any, truth: npt.ArrayLike, estimates: Mapping[str, Any], title: str = "",
+                     markers: Mapping[str, str] | None = None) -> None:
+    """True paths (T, N, 2) as black lines and each estimator's positions, in metres.
+
+    `estimates[name]` is (T, N, 2), one line per vehicle; with `markers` (name → marker)
+    it is a sequence of (n_k, 2) position sets drawn as points, for set-valued
+    estimates whose slots are not identities.
+    """
+    truth = np.asarray(truth)
+    for i in range(truth.shape[1]):
+        ax.plot(truth[:, i, 0], truth[:, i, 1], "k-", lw=1.4, label="truth" if i == 0 else None)
+    for k, (name, positions) in enumerate(estimates.items()):
+        if markers is not None:
+            points = np.concatenate([np.asarray(p).reshape(-1, 2) for p in positions])
+            ax.plot(points[:, 0], points[:, 1], markers.get(name, "."), ms=2.5, alpha=0.6,
+                    label=name, mfc="none")
+            continue
+        paths = np.asarray(positions)
+        for i in range(paths.shape[1]):
+            ax.plot(paths[:, i, 0], paths[:, i, 1], color=f"C{k}", lw=0.8, alpha=0.85,
+                    label=name if i == 0 else None)
+    ax.set_title(title)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(alpha=0.3)
 
 
 def rmse_over_time(result: ExperimentResult, path: Path) -> Path:
@@ -79,7 +128,7 @@ def rmse_over_time(result: ExperimentResult, path: Path) -> Path:
     tables = {name: result.errors(name)[1] for name in names}
     ids = np.unique(np.concatenate([t.id[t.kind == VEHICLE] for t in tables.values()]))
     ids = ids[:MAX_PANELS]
-    fig, axes = _panels(max(ids.size, 1), f"{result.config.scenario}: position RMSE over time "
+    fig, axes = figure_panels(max(ids.size, 1), f"{result.config.scenario}: position RMSE over time "
                         f"({result.config.runs} runs)")
     for ax, vid in zip(axes, ids, strict=False):
         for name, table in tables.items():
@@ -100,13 +149,12 @@ def per_run_rmse_cdf(per_run: Mapping[str, Mapping[str, Sequence[float | None]]]
                      title: str) -> Path:
     """CDF of per-run RMSE: per_run[estimator][vehicle id] = RMSE of each run."""
     ids = sorted({vid for by_id in per_run.values() for vid in by_id}, key=int)[:MAX_PANELS]
-    fig, axes = _panels(max(len(ids), 1), title)
+    fig, axes = figure_panels(max(len(ids), 1), title)
     for ax, vid in zip(axes, ids, strict=False):
         for name, by_id in per_run.items():
             values = [v for v in by_id.get(vid, []) if v is not None]
             if values:
-                x, p = ecdf(values)
-                ax.step(x, p, where="post", label=name, **_style(name))
+                cdf_step(ax, values, label=name, **_style(name))
         ax.set_title(f"vehicle {vid}")
         ax.set_xlabel("per-run position RMSE [m]")
         ax.set_ylabel("CDF")
@@ -118,7 +166,7 @@ def sweep_plot(x: Sequence[float], curves: Mapping[str, Mapping[str, Sequence[fl
                path: Path, title: str, xlabel: str, log_x: bool = False) -> Path:
     """curves[estimator][vehicle id] = RMSE at each x."""
     ids = sorted({vid for c in curves.values() for vid in c}, key=int)[:MAX_PANELS]
-    fig, axes = _panels(max(len(ids), 1), title)
+    fig, axes = figure_panels(max(len(ids), 1), title)
     for ax, vid in zip(axes, ids, strict=False):
         for name, by_id in curves.items():
             if vid in by_id:
@@ -133,9 +181,11 @@ def sweep_plot(x: Sequence[float], curves: Mapping[str, Mapping[str, Sequence[fl
 
 
 def line_panels(panels: Mapping[str, Mapping[str, tuple[Sequence[float], Sequence[float]]]], path: Path,
-                title: str, xlabel: str, ylabel: str, markers: bool = True) -> Path:
-    """panels[panel title][curve label] = (x, y); known-association bounds dashed."""
-    fig, axes = _panels(max(len(panels), 1), title)
+                title: str, xlabel: str, ylabel: str, markers: bool = True,
+                size: tuple[float, float] = (4.2, 3.3)) -> Path:
+    """panels[panel title][curve label] = (x, y); known-association bounds dashed; `size`
+    of a panel in inches."""
+    fig, axes = figure_panels(max(len(panels), 1), title, size=size)
     for ax, (name, curves) in zip(axes, panels.items(), strict=False):
         for label, (x, y) in curves.items():
             style = _style(label.split(" ")[0])

@@ -22,19 +22,15 @@ Distance to the junction: |p| signed positive while the vehicle approaches the c
 from __future__ import annotations
 
 import dataclasses
-import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cooploc.estimators import estimators
-from cooploc.experiment import ExperimentConfig, ExperimentResult, run_experiment, run_generators
+from cooploc.experiment import ExperimentConfig, ExperimentResult
 from cooploc.metrics import FEATURE, VEHICLE
 from cooploc.plots import format_number, line_panels
-from cooploc.reproduce import PaperExperiment, ReproduceOptions
+from cooploc.reproduce.base import PaperExperiment, ReproduceContext, registered, replay_recording
 from cooploc.results import summarize
-from cooploc.scenarios import get_preset
 
 __all__ = ["EXPERIMENT", "FEATURE_COUNTS", "FEATURE_SPACINGS", "FEATURE_SPEEDS"]
 
@@ -47,11 +43,6 @@ ETA_ONE = "icp-da-lc η=1"
 DEFAULT_RUNS_ROAD, DEFAULT_RUNS_CROSSROAD = 50, 20
 DISTANCE_BINS = np.arange(-250.0, 251.0, 25.0)
 PAPER_LC_ACCURACY = {0.5: 0.54, 3.0: 0.92}
-
-
-def _registered(names: tuple[str, ...]) -> list[str]:
-    known = estimators()
-    return [n for n in names if n in known]
 
 
 def _over_time(result: ExperimentResult, kind: int) -> dict[str, tuple[list[float], list[float]]]:
@@ -74,12 +65,9 @@ def _signed_distances(config: ExperimentConfig) -> dict[int, tuple[np.ndarray, n
 
     The recordings are simulated again from the run's seed (cheap, and identical).
     """
-    preset = get_preset(config.scenario)
-    names = [e.name for e in config.estimators]
     out = {}
     for r in range(config.runs):
-        rng, _ = run_generators(config.seed, r, names)
-        truth = preset.generate(rng, config.scenario_params).truth
+        truth = replay_recording(config, r).truth
         p, v = truth.vehicle_states[..., :2], truth.vehicle_states[..., 2:4]
         sign = np.where(np.einsum("tni,tni->tn", p, v) < 0, 1.0, -1.0)
         out[r] = (sign * np.linalg.norm(p, axis=2), truth.vehicle_ids)
@@ -118,17 +106,17 @@ def _with_eta_one(config: ExperimentConfig) -> ExperimentConfig:
     return dataclasses.replace(config, estimators=specs)
 
 
-def _crossroad_point(base: ExperimentConfig, overrides: dict[str, Any], progress: bool
+def _crossroad_point(ctx: ReproduceContext, base: ExperimentConfig, overrides: dict[str, Any]
                      ) -> tuple[dict, dict, dict]:
     """RMSE-vs-distance curves and association numbers of one crossroad setting."""
     config = dataclasses.replace(base, scenario_params=base.scenario_params.with_overrides(overrides))
-    result = run_experiment(config, progress=progress)
+    result = ctx.run(config)
     curves = _rmse_vs_distance(result)
     summary = summarize(result)
     assoc = {"icp-da-lc": _association(summary, "icp-da-lc")}
     rmse_all = {n: e["vehicle_rmse_all"] for n, e in summary["estimators"].items()}
     if any(s.name == "icp-da-lc" for s in config.estimators):
-        eta_one = run_experiment(_with_eta_one(config), progress=progress)
+        eta_one = ctx.run(_with_eta_one(config))
         curves.update(_rmse_vs_distance(eta_one, {"icp-da-lc": ETA_ONE}))
         summary_one = summarize(eta_one)
         assoc[ETA_ONE] = _association(summary_one, "icp-da-lc")
@@ -136,22 +124,16 @@ def _crossroad_point(base: ExperimentConfig, overrides: dict[str, Any], progress
     return curves, assoc, rmse_all
 
 
-def run(options: ReproduceOptions) -> Path:
-    out = Path(options.out)
-    out.mkdir(parents=True, exist_ok=True)
-    road_names, cross_names = _registered(ROAD), _registered(CROSSROAD)
-    runs_road = options.runs or (2 if options.quick else DEFAULT_RUNS_ROAD)
-    runs_cross = options.runs or (1 if options.quick else DEFAULT_RUNS_CROSSROAD)
-    est_over = {"icp-da-pf": {"n_particles": "150"}} if options.quick else {}
-    common = {"seed": options.seed, "backend": options.backend, "workers": options.workers}
+def compute(ctx: ReproduceContext) -> dict[str, Any]:
+    road_names, cross_names = ctx.compared, registered(CROSSROAD)
+    runs_road, runs_cross = ctx.runs, ctx.runs_or(DEFAULT_RUNS_CROSSROAD, quick=1)
+    est_over = {"icp-da-pf": {"n_particles": "150"}} if ctx.quick else {}
 
     # Fig. 7: road, RMSE over time per feature spacing
     fig7_v, fig7_f, road_assoc, road_rmse = {}, {}, {}, {}
     for spacing in FEATURE_SPACINGS:
-        config = ExperimentConfig.build(
-            "brambilla-road", road_names, runs=runs_road, scenario_overrides={"feature_spacing": spacing},
-            estimator_overrides={k: v for k, v in est_over.items() if k in road_names}, **common)
-        result = run_experiment(config, progress=options.progress)
+        result = ctx.run(ctx.config("brambilla-road", scenario_overrides={"feature_spacing": spacing},
+                                    estimator_overrides=est_over))
         summary = summarize(result)
         key = f"d_f = {spacing:g} m"
         fig7_v[key] = _over_time(result, VEHICLE)
@@ -160,41 +142,40 @@ def run(options: ReproduceOptions) -> Path:
         road_rmse[key] = {n: e["vehicle_rmse_all"] for n, e in summary["estimators"].items()}
     line_panels({f"vehicles, {k}": v for k, v in fig7_v.items()} | {f"features, {k}": v for k, v in
                                                                      fig7_f.items()},
-                out / "fig7_road_rmse_over_time.png",
+                ctx.out / "fig7_road_rmse_over_time.png",
                 f"Brambilla 2020 Fig. 7: position RMSE over time ({runs_road} runs)", "time [s]",
                 "position RMSE [m]", markers=False)
 
     # Figs. 8–11: crossroad, static features for N_f, moving features for v_f
-    cross_base = ExperimentConfig.build(
-        "brambilla-crossroad", cross_names, runs=runs_cross,
-        scenario_overrides={"n_steps": 14} if options.quick else {}, **common)
+    cross_base = ctx.config("brambilla-crossroad", cross_names, runs=runs_cross,
+                            scenario_overrides={"n_steps": 14} if ctx.quick else {})
     fig8, fig9, rmse8 = {}, {}, {}
     for n_features in FEATURE_COUNTS:
         static = {"n_features": n_features, "feature_speed": 0.0}
-        curves, assoc, rmse_all = _crossroad_point(cross_base, static, options.progress)
+        curves, assoc, rmse_all = _crossroad_point(ctx, cross_base, static)
         fig8[f"N_f = {n_features}"], fig9[n_features], rmse8[n_features] = curves, assoc, rmse_all
     fig10, fig11, rmse10 = {}, {}, {}
     for speed in FEATURE_SPEEDS:
-        curves, assoc, rmse_all = _crossroad_point(cross_base, {"n_features": 20, "feature_speed": speed},
-                                                   options.progress)
+        moving = {"n_features": 20, "feature_speed": speed}
+        curves, assoc, rmse_all = _crossroad_point(ctx, cross_base, moving)
         fig10[f"v_f = {speed:g} m/s"], fig11[speed], rmse10[speed] = curves, assoc, rmse_all
-    line_panels(fig8, out / "fig8_rmse_vs_distance_features.png",
+    line_panels(fig8, ctx.out / "fig8_rmse_vs_distance_features.png",
                 f"Brambilla 2020 Fig. 8: vehicle RMSE vs distance to the centre, static features "
                 f"({runs_cross} runs)", "signed distance to the junction [m] (> 0 approaching)",
                 "position RMSE [m]")
-    line_panels(fig10, out / "fig10_rmse_vs_distance_speed.png",
+    line_panels(fig10, ctx.out / "fig10_rmse_vs_distance_speed.png",
                 f"Brambilla 2020 Fig. 10: vehicle RMSE vs distance, N_f = 20 moving features "
                 f"({runs_cross} runs)", "signed distance to the junction [m] (> 0 approaching)",
                 "position RMSE [m]")
-    line_panels(_association_panels(fig9), out / "fig9_association_vs_features.png",
+    line_panels(_association_panels(fig9), ctx.out / "fig9_association_vs_features.png",
                 "Brambilla 2020 Fig. 9: association of ICP-DA-LC vs number of features",
                 "number of features N_f", "share of V2F measurements [%]")
-    line_panels(_association_panels(fig11), out / "fig11_association_vs_speed.png",
+    line_panels(_association_panels(fig11), ctx.out / "fig11_association_vs_speed.png",
                 "Brambilla 2020 Fig. 11: association of ICP-DA-LC vs feature speed",
                 "feature speed v_f [m/s]", "share of V2F measurements [%]")
 
-    data = {
-        "runs_road": runs_road, "runs_crossroad": runs_cross, "seed": options.seed,
+    return {
+        "runs_road": runs_road, "runs_crossroad": runs_cross,
         "road_estimators": road_names, "crossroad_estimators": cross_names,
         "fig7_vehicles": fig7_v, "fig7_features": fig7_f, "road_association": road_assoc,
         "road_vehicle_rmse_all": road_rmse,
@@ -203,9 +184,6 @@ def run(options: ReproduceOptions) -> Path:
         "fig10": fig10, "fig10_vehicle_rmse_all": {str(k): v for k, v in rmse10.items()},
         "fig11": {str(k): v for k, v in fig11.items()},
     }
-    (out / "data.json").write_text(json.dumps(data, indent=2) + "\n")
-    (out / "report.md").write_text(_report(data, options.quick))
-    return out
 
 
 def _association_panels(points: dict[Any, dict[str, tuple[float | None, float | None]]]
@@ -239,7 +217,7 @@ def _near_centre(curves: dict[str, tuple[list[float], list[float]]], name: str) 
     return float(np.sqrt(np.mean(y[near] ** 2))) if near.any() else None
 
 
-def _report(data: dict[str, Any], quick: bool) -> str:
+def report(data: dict[str, Any]) -> list[str]:
     ra = data["road_association"]
     lines = [
         "# Brambilla, Nicoli, Soatti & Deflorio 2020 — reproduction of §V",
@@ -249,7 +227,7 @@ def _report(data: dict[str, Any], quick: bool) -> str:
         f"{', '.join(data['crossroad_estimators'])} and `{ETA_ONE}` (η_TH = 1). `icp` and `oracle-kf` "
         "know the association: they are bounds (dashed), not methods.",
     ]
-    if quick:
+    if data["quick"]:
         lines += ["", "**Quick mode**: few runs, short runs and few particles — checks the pipeline; "
                   "the numbers are not the paper's setting."]
     rmse_road = data["road_vehicle_rmse_all"]
@@ -314,20 +292,8 @@ def _report(data: dict[str, Any], quick: bool) -> str:
         "uncertainty than the paper's refined beliefs: more association errors at a given spacing.",
         "- ICP-DA-PF uses J = 500 particles by default (paper: 5000) and a Silverman-widened pair "
         "kernel; without it the 0.2 m V2F noise leaves almost no particle pair inside the kernel.",
-        "",
-        "![Fig. 7](fig7_road_rmse_over_time.png)",
-        "",
-        "![Fig. 8](fig8_rmse_vs_distance_features.png)",
-        "",
-        "![Fig. 9](fig9_association_vs_features.png)",
-        "",
-        "![Fig. 10](fig10_rmse_vs_distance_speed.png)",
-        "",
-        "![Fig. 11](fig11_association_vs_speed.png)",
-        "",
-        "All numbers: `data.json`.",
     ]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def _inv(pair: tuple[float | None, float | None] | None) -> float | None:
@@ -339,6 +305,12 @@ EXPERIMENT = PaperExperiment(
     name="brambilla2020",
     title="Brambilla, Nicoli, Soatti & Deflorio 2020, §V (Figs. 7–11)",
     paper="003_dd51a52f1e371d91.txt",
-    run=run,
+    compute=compute,
+    report=report,
+    compared=ROAD,                  # the crossroad compares the registered ones of CROSSROAD
+    runs=DEFAULT_RUNS_ROAD,
+    figures=(("Fig. 7", "fig7_road_rmse_over_time.png"), ("Fig. 8", "fig8_rmse_vs_distance_features.png"),
+             ("Fig. 9", "fig9_association_vs_features.png"), ("Fig. 10", "fig10_rmse_vs_distance_speed.png"),
+             ("Fig. 11", "fig11_association_vs_speed.png")),
 )
 

@@ -13,25 +13,19 @@ The paper does not state its number of Monte Carlo runs; we default to 20 per po
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cooploc.estimators import estimators
-from cooploc.experiment import ExperimentConfig, run_experiment, run_sweep
 from cooploc.plots import format_number, per_run_rmse_cdf, sweep_plot
-from cooploc.reproduce import PaperExperiment, ReproduceOptions
+from cooploc.reproduce.base import PaperExperiment, ReproduceContext
 from cooploc.results import summarize
 from cooploc.scenarios.froehle2018 import FroehleParams
 
 __all__ = ["EXPERIMENT", "FEATURE_COUNTS", "V2F_VARIANCES", "analytic_gnss_rmse"]
 
-COMPARED = ("gnss-kf", "rsu-bp", "oracle-kf")
 V2F_VARIANCES = (0.1, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0)
 FEATURE_COUNTS = (0, 1, 2, 3, 4, 5, 6)
-DEFAULT_RUNS = 20
 PAPER_GNSS_RMSE_VEHICLE2 = 3.5  # m, §V-B
 #: quick mode: rsu-bp with few particles so that the pipeline check stays fast
 QUICK_RSU_BP = {"n_particles": 60}
@@ -64,41 +58,31 @@ def _curves(sweep: list[tuple[Any, Any]]) -> dict[str, dict[str, list[float]]]:
     return curves
 
 
-def run(options: ReproduceOptions) -> Path:
-    out = Path(options.out)
-    out.mkdir(parents=True, exist_ok=True)
-    compared = [n for n in COMPARED if n in estimators()]
-    runs = options.runs or (2 if options.quick else DEFAULT_RUNS)
-    overrides = {"n_steps": 41} if options.quick else {}
-    est_overrides = {"rsu-bp": QUICK_RSU_BP} if options.quick and "rsu-bp" in compared else {}
-    base = ExperimentConfig.build("froehle2018", compared, scenario_overrides=overrides,
-                                  estimator_overrides=est_overrides,
-                                  runs=runs, seed=options.seed, backend=options.backend,
-                                  workers=options.workers)
+def compute(ctx: ReproduceContext) -> dict[str, Any]:
+    overrides = {"n_steps": 41} if ctx.quick else {}
+    base = ctx.config("froehle2018", scenario_overrides=overrides,
+                      estimator_overrides={"rsu-bp": QUICK_RSU_BP} if ctx.quick else {})
     params: FroehleParams = base.scenario_params  # type: ignore[assignment]
 
     # Fig. 3: CDF of the per-run RMSE at the §V-A defaults
-    summary3 = summarize(run_experiment(base, progress=options.progress))
+    summary3 = summarize(ctx.run(base))
     per_run = {n: e["per_run_vehicle_rmse"] for n, e in summary3["estimators"].items()}
-    per_run_rmse_cdf(per_run, out / "fig3_rmse_cdf.png",
-                     f"Fröhle 2018 Fig. 3: CDF of per-run vehicle RMSE ({runs} runs)")
+    per_run_rmse_cdf(per_run, ctx.out / "fig3_rmse_cdf.png",
+                     f"Fröhle 2018 Fig. 3: CDF of per-run vehicle RMSE ({ctx.runs} runs)")
 
     # Fig. 4: against the V2F variance
-    sweep4 = run_sweep(base, "v2f_variance", V2F_VARIANCES, progress=options.progress)
-    curves4 = _curves(sweep4)
-    sweep_plot(V2F_VARIANCES, curves4, out / "fig4_rmse_vs_v2f_variance.png",
-               f"Fröhle 2018 Fig. 4: RMSE vs V2F variance ({runs} runs per point)",
+    curves4 = _curves(ctx.sweep(base, "v2f_variance", V2F_VARIANCES))
+    sweep_plot(V2F_VARIANCES, curves4, ctx.out / "fig4_rmse_vs_v2f_variance.png",
+               f"Fröhle 2018 Fig. 4: RMSE vs V2F variance ({ctx.runs} runs per point)",
                "V2F variance σ²_V2F [m²]", log_x=True)
 
     # Fig. 5: against the number of features
-    sweep5 = run_sweep(base, "n_features", FEATURE_COUNTS, progress=options.progress)
-    curves5 = _curves(sweep5)
-    sweep_plot(FEATURE_COUNTS, curves5, out / "fig5_rmse_vs_features.png",
-               f"Fröhle 2018 Fig. 5: RMSE vs number of features ({runs} runs per point)",
+    curves5 = _curves(ctx.sweep(base, "n_features", FEATURE_COUNTS))
+    sweep_plot(FEATURE_COUNTS, curves5, ctx.out / "fig5_rmse_vs_features.png",
+               f"Fröhle 2018 Fig. 5: RMSE vs number of features ({ctx.runs} runs per point)",
                "number of features K")
 
-    data = {
-        "runs": runs, "seed": options.seed, "compared": compared,
+    return {
         "scenario_params": params.to_dict(),
         "fig3_per_run_vehicle_rmse": per_run,
         "fig3_vehicle_rmse": {n: e["vehicle_rmse"] for n, e in summary3["estimators"].items()},
@@ -111,12 +95,9 @@ def run(options: ReproduceOptions) -> Path:
         "analytic_gnss_rmse": {str(s): analytic_gnss_rmse(params, s)
                                for s in range(params.n_vehicles)},
     }
-    (out / "data.json").write_text(json.dumps(data, indent=2) + "\n")
-    (out / "report.md").write_text(_report(data, options.quick))
-    return out
 
 
-def _report(data: dict[str, Any], quick: bool) -> str:
+def report(data: dict[str, Any]) -> list[str]:
     fig3 = data["fig3_vehicle_rmse"]
     c4, c5 = data["fig4"]["vehicle_rmse"], data["fig5"]["vehicle_rmse"]
     oracle4 = c4.get("oracle-kf", {})
@@ -138,7 +119,7 @@ def _report(data: dict[str, Any], quick: bool) -> str:
         + ", ".join(data["compared"]) + ". Paper vehicle 1 / 2 = our vehicle 0 / 1. "
         "`oracle-kf` knows the true association: it is the accuracy bound (dashed), not a method.",
     ]
-    if quick:
+    if data["quick"]:
         lines += ["", "**Quick mode**: short trajectories, few runs and (for `rsu-bp`) "
                   f"N_p = {QUICK_RSU_BP['n_particles']} particles — checks the pipeline, the "
                   "numbers are not the paper's setting."]
@@ -168,19 +149,10 @@ def _report(data: dict[str, Any], quick: bool) -> str:
         "The paper's 3.5 m for the GNSS-only filter does not follow from its stated parameters "
         "(r = 0.1, ΔT = 0.5 s, σ² = 15 m²): the steady-state Kalman filter gives 2.53 m, and our "
         "simulation agrees with that. The paper's figures give no other numbers in its text.",
-        "",
-        "![Fig. 3](fig3_rmse_cdf.png)",
-        "",
-        "![Fig. 4](fig4_rmse_vs_v2f_variance.png)",
-        "",
-        "![Fig. 5](fig5_rmse_vs_features.png)",
-        "",
-        "All numbers: `data.json`.",
     ]
     if method is not None:
-        at = lines.index("![Fig. 3](fig3_rmse_cdf.png)")
-        lines[at:at] = [*_method_rows(data), ""]
-    return "\n".join(lines) + "\n"
+        lines += ["", *_method_rows(data)]
+    return lines
 
 
 def _method_rows(data: dict[str, Any]) -> list[str]:
@@ -230,5 +202,10 @@ EXPERIMENT = PaperExperiment(
     name="froehle2018",
     title="Fröhle, Lindberg & Wymeersch 2018, Figs. 3–5",
     paper="000_a7dd486b38b8eaff.txt",
-    run=run,
+    compute=compute,
+    report=report,
+    compared=("gnss-kf", "rsu-bp", "oracle-kf"),
+    runs=20,
+    figures=(("Fig. 3", "fig3_rmse_cdf.png"), ("Fig. 4", "fig4_rmse_vs_v2f_variance.png"),
+             ("Fig. 5", "fig5_rmse_vs_features.png")),
 )

@@ -19,158 +19,84 @@ Runs: 1000 per vehicle count by default, as the paper (`--runs` to change).
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 
-from cooploc.estimators import estimators, make_estimator
-from cooploc.experiment import ExperimentConfig, ExperimentResult, run_experiment, run_generators
-from cooploc.metrics import VEHICLE
-from cooploc.plots import format_number
-from cooploc.reproduce import PaperExperiment, ReproduceOptions
-from cooploc.scenarios import get_preset
+from cooploc.experiment import ExperimentConfig
+from cooploc.metrics import VEHICLE, total_rmse_per_run_and_step
+from cooploc.plots import format_number, line_panels, pyplot, save_figure, trajectory_panel
+from cooploc.reproduce.base import PaperExperiment, ReproduceContext, replay
 
-__all__ = ["EXPERIMENT", "PAPER_TABLE_I", "PAPER_TABLE_II", "total_rmse"]
+__all__ = ["EXPERIMENT", "PAPER_TABLE_I", "PAPER_TABLE_II"]
 
-COMPARED = ("fg-topology-new", "fg-topology-old", "gnss-kf", "fg-isam2")
 KALMAN = "gnss-kf"
 VEHICLE_COUNTS = (2, 3, 4)
-DEFAULT_RUNS = 1000
 #: Table I of the paper: average RMSE (eq. 21) for new factor, old factor, Kalman filter.
 PAPER_TABLE_I = {2: (5.211, 7.187, 8.423), 3: (7.065, 7.076, 10.310), 4: (7.321, 8.184, 11.908)}
 #: Table II of the paper: average execution time per run (s), same columns (C++, GTSAM 3.2.1).
 PAPER_TABLE_II = {2: (0.153, 0.692, 0.010), 3: (0.181, 0.468, 0.010), 4: (0.273, 0.583, 0.017)}
 PAPER_COLUMNS = ("fg-topology-new", "fg-topology-old", "gnss-kf")
+#: figure numbers (trajectories, per-step RMSE) by vehicle count
+FIGURES = {2: (3, 4), 4: (5, 6)}
 
 
-def total_rmse(result: ExperimentResult, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. 21 per run (R,) and per step (T,): the error of the whole system.
-
-    Per run: sqrt(mean over steps of Σ_i ‖p̂_i − p_i‖²). Per step: sqrt(mean over runs of
-    Σ_i ‖p̂_i − p_i‖²).
-    """
-    run, table = result.errors(name)
-    rows = table.kind == VEHICLE
-    run, step, sq = run[rows], table.step[rows], table.err_pos[rows] ** 2
-    runs = np.array([r.run for r in result.runs])
-    n_steps = int(step.max()) + 1 if step.size else 0
-    per = np.zeros((runs.size, n_steps))
-    np.add.at(per, (np.searchsorted(runs, run), step), sq)  # Σ over vehicles
-    return np.sqrt(per.mean(axis=1)), np.sqrt(per.mean(axis=0))
-
-
-def _one_run(preset: str, overrides: dict[str, Any], names: list[str], seed: int) -> dict[str, Any]:
-    """Run 0 of the experiment again, keeping the estimates (for the trajectory figures)."""
-    p = get_preset(preset)
-    scenario_rng, rngs = run_generators(seed, 0, names)
-    recording = p.generate(scenario_rng, p.params.with_overrides(overrides))
-    tracks: dict[str, Any] = {"truth": recording.truth.vehicle_states[:, :, :2].tolist()}
-    for name in names:
-        est = make_estimator(name, recording.setup, None, rngs[name], recording.truth)
-        estimates = [est.step(frame) for frame in recording.frames]
-        smooth = getattr(est, "smooth", None)
-        if callable(smooth):
-            estimates = smooth()
-        tracks[name] = np.array([e.vehicles.mean[:, :2] for e in estimates]).tolist()
-    return tracks
-
-
-def _trajectory_figure(tracks: dict[str, Any], names: list[str], path: Path, title: str) -> None:
-    fig, ax = plt.subplots(figsize=(6.5, 5.5))
-    truth = np.array(tracks["truth"])
-    for i in range(truth.shape[1]):
-        ax.plot(truth[:, i, 0], truth[:, i, 1], "k-", lw=1.6, label="ground truth" if i == 0 else None)
-    for name, color in zip(names, ("C0", "C1", "C2", "C3"), strict=False):
-        est = np.array(tracks[name])
-        for i in range(est.shape[1]):
-            ax.plot(est[:, i, 0], est[:, i, 1], color=color, lw=0.8, alpha=0.85,
-                    label=name if i == 0 else None)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(title)
-    ax.axis("equal")
-    ax.grid(alpha=0.3)
+def _figures(ctx: ReproduceContext, config: ExperimentConfig, row: dict[str, Any], n: int) -> None:
+    """Figs. 3/5 (trajectories of run 0) and 4/6 (eq. 21 error per step) for n vehicles."""
+    names = [e.name for e in config.estimators]
+    shown = [x for x in names if x != "fg-isam2"] if n == 4 else \
+        [x for x in ("fg-topology-old", "fg-topology-new") if x in names]
+    fig_tracks, fig_rmse = FIGURES[n]
+    recording, estimates = replay(config, 0)
+    fig, ax = pyplot().subplots(figsize=(6.5, 5.5))
+    trajectory_panel(ax, recording.truth.vehicle_states[:, :, :2],
+                     {x: np.array([e.vehicles.mean[:, :2] for e in estimates[x]]) for x in shown},
+                     f"Gulati Fig. {fig_tracks}: ground truth and estimates, {n} vehicles (run 0)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, ctx.out / f"fig{fig_tracks}_trajectories_{n}v.png")
+    per_step = {x: row[x]["total_rmse_per_step"] for x in shown}
+    line_panels({"": {x: (list(range(len(curve))), curve) for x, curve in per_step.items()}},
+                ctx.out / f"fig{fig_rmse}_rmse_per_step_{n}v.png",
+                f"Gulati Fig. {fig_rmse}: system RMSE per step, {n} vehicles ({ctx.runs} runs)",
+                "step", "system RMSE, eq. 21 [m]", markers=False, size=(6.5, 4.0))
 
 
-def _rmse_figure(curves: dict[str, list[float]], path: Path, title: str) -> None:
-    fig, ax = plt.subplots(figsize=(6.5, 4))
-    for name, curve in curves.items():
-        ax.plot(np.arange(len(curve)), curve, lw=1, label=name)
-    ax.set_xlabel("step")
-    ax.set_ylabel("system RMSE, eq. 21 [m]")
-    ax.set_title(title)
-    ax.set_ylim(bottom=0)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def run(options: ReproduceOptions) -> Path:
-    out = Path(options.out)
-    out.mkdir(parents=True, exist_ok=True)
-    names = [n for n in COMPARED if n in estimators()]
-    runs = options.runs or (2 if options.quick else DEFAULT_RUNS)
-    overrides: dict[str, Any] = {"n_steps": 30} if options.quick else {}
+def compute(ctx: ReproduceContext) -> dict[str, Any]:
+    names, runs = ctx.compared, ctx.runs
+    overrides: dict[str, Any] = {"n_steps": 30} if ctx.quick else {}
     table: dict[str, Any] = {}
     for n in VEHICLE_COUNTS:
-        preset = f"gulati-{n}v"
-        config = ExperimentConfig.build(preset, names, scenario_overrides=overrides, runs=runs,
-                                        seed=options.seed, backend=options.backend,
-                                        workers=options.workers)
-        result = run_experiment(config, progress=options.progress)
+        config = ctx.config(f"gulati-{n}v", scenario_overrides=overrides)
+        result = ctx.run(config)
         row: dict[str, Any] = {}
         for name in names:
-            per_run, per_step = total_rmse(result, name)
-            _, errors = result.errors(name)
-            vehicle = errors.err_pos[errors.kind == VEHICLE]
+            run, errors = result.errors(name)
+            vehicles = errors.kind == VEHICLE
+            per_run, per_step = total_rmse_per_run_and_step(run[vehicles], errors.step[vehicles],
+                                                            errors.err_pos[vehicles])
             seconds = [r.step_seconds[name] for r in result.runs]
             row[name] = {
                 "total_rmse": float(per_run.mean()),
                 "total_rmse_std_error": float(per_run.std(ddof=1) / np.sqrt(runs)) if runs > 1 else None,
                 "per_run_total_rmse": per_run.tolist(),
-                "vehicle_rmse_all": float(np.sqrt(np.mean(vehicle**2))),
+                "vehicle_rmse_all": float(np.sqrt(np.mean(errors.err_pos[vehicles]**2))),
                 "total_rmse_per_step": per_step.tolist(),
                 "seconds_per_run": float(np.mean(seconds)),
             }
-        kalman = row.get(KALMAN, {}).get("per_run_total_rmse")
-        for name in names:
-            if kalman is not None:
+        if KALMAN in row:
+            for name in names:
                 row[name]["ratio_to_kalman"] = row[name]["total_rmse"] / row[KALMAN]["total_rmse"]
         table[str(n)] = row
-        if n in (2, 4):
-            fig = {2: (3, 4), 4: (5, 6)}[n]
-            shown = [x for x in names if x != "fg-isam2"] if n == 4 else \
-                [x for x in ("fg-topology-old", "fg-topology-new") if x in names]
-            tracks = _one_run(preset, overrides, names, options.seed)
-            _trajectory_figure(tracks, shown, out / f"fig{fig[0]}_trajectories_{n}v.png",
-                               f"Gulati Fig. {fig[0]}: ground truth and estimates, {n} vehicles (run 0)")
-            _rmse_figure({x: row[x]["total_rmse_per_step"] for x in shown},
-                         out / f"fig{fig[1]}_rmse_per_step_{n}v.png",
-                         f"Gulati Fig. {fig[1]}: system RMSE per step, {n} vehicles ({runs} runs)")
-    data = {"runs": runs, "seed": options.seed, "compared": names, "quick": options.quick,
-            "scenario_overrides": overrides, "table": table,
+        if n in FIGURES:
+            _figures(ctx, config, row, n)
+    return {"scenario_overrides": overrides, "table": table,
             "paper_table_i": {str(k): dict(zip(PAPER_COLUMNS, v, strict=True))
                               for k, v in PAPER_TABLE_I.items()},
             "paper_table_ii": {str(k): dict(zip(PAPER_COLUMNS, v, strict=True))
                                for k, v in PAPER_TABLE_II.items()}}
-    (out / "data.json").write_text(json.dumps(data, indent=2) + "\n")
-    (out / "report.md").write_text(_report(data))
-    return out
 
 
-def _report(data: dict[str, Any]) -> str:
+def report(data: dict[str, Any]) -> list[str]:
     names, table = data["compared"], data["table"]
     lines = [
         "# Gulati et al. 2017 — reproduction",
@@ -240,23 +166,18 @@ def _report(data: dict[str, Any]) -> str:
         "the Kalman filter pays too. `fg-isam2` is a filter here, not a smoother: its "
         "estimates do not use later data, so it lies between the Kalman filter and the "
         "batch graphs.",
-        "",
-        "![Fig. 3](fig3_trajectories_2v.png)",
-        "",
-        "![Fig. 4](fig4_rmse_per_step_2v.png)",
-        "",
-        "![Fig. 5](fig5_trajectories_4v.png)",
-        "",
-        "![Fig. 6](fig6_rmse_per_step_4v.png)",
-        "",
-        "All numbers: `data.json`.",
     ]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 EXPERIMENT = PaperExperiment(
     name="gulati",
     title="Gulati et al. 2017, Tables I–II and Figs. 3–6",
     paper="004_1b86586d95b593ad.txt",
-    run=run,
+    compute=compute,
+    report=report,
+    compared=("fg-topology-new", "fg-topology-old", "gnss-kf", "fg-isam2"),
+    runs=1000,
+    figures=(("Fig. 3", "fig3_trajectories_2v.png"), ("Fig. 4", "fig4_rmse_per_step_2v.png"),
+             ("Fig. 5", "fig5_trajectories_4v.png"), ("Fig. 6", "fig6_rmse_per_step_4v.png")),
 )

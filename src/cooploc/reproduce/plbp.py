@@ -25,22 +25,18 @@ ours, including the issue's target "≥ 95 % of non-anchor vehicles within 4 m a
 
 from __future__ import annotations
 
-import json
-import os
-from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from cooploc.estimators import make_estimator
-from cooploc.estimators.plbp import PLBPParams, PriorLBPParams, iteration_errors, link_factors
-from cooploc.experiment import ExperimentConfig, run_generators, run_sweep
+from cooploc.experiment import ExperimentConfig, run_generators
 from cooploc.geometry import wrap_angle
-from cooploc.metrics import ecdf, rmse
-from cooploc.plots import format_number
-from cooploc.reproduce import PaperExperiment, ReproduceOptions
+from cooploc.metrics import rmse
+from cooploc.plots import cdf_step, figure_panels, format_number, save_figure
+from cooploc.reproduce.base import PaperExperiment, ReproduceContext
 from cooploc.scenarios import get_preset
 from cooploc.scenarios.aoa_grid import AoaGridParams, anchor_ids
 from cooploc.types import Recording
@@ -85,6 +81,8 @@ def map_estimate(recording: Recording, k: int = 0) -> np.ndarray:
     """
     from scipy.optimize import least_squares
     from scipy.sparse import lil_matrix
+
+    from cooploc.estimators.plbp import link_factors
 
     frame, setup = recording.frames[k], recording.setup
     ids = frame.vehicles
@@ -136,6 +134,8 @@ def _snapshot_errors(task: tuple[AoaGridParams, int, int, bool]) -> dict[str, np
     non-anchor vehicle. Seeded exactly as `cooploc run` seeds run r
     (`experiment.run_generators`), so the snapshots are those of `cooploc run aoa-grid`.
     """
+    from cooploc.estimators.plbp import PLBPParams, PriorLBPParams, iteration_errors
+
     params, seed, run, with_map = task
     preset = get_preset("aoa-grid")
     scenario_rng, estimator_rngs = run_generators(seed, run, ESTIMATORS)
@@ -164,42 +164,12 @@ def _snapshot_errors(task: tuple[AoaGridParams, int, int, bool]) -> dict[str, np
     return out
 
 
-def _map(fn: Callable[[Any], Any], tasks: Sequence[Any], options: ReproduceOptions, label: str
-         ) -> list[Any]:
-    """fn over tasks in order: worker processes unless the backend is serial; a progress bar."""
-    workers = options.workers or os.cpu_count() or 1
-    parallel = options.backend != "serial" and workers > 1 and len(tasks) > 1
-    results: list[Any] = []
-    progress = None
-    if options.progress:
-        from rich.progress import Progress
-        progress = Progress()
-        bar = progress.add_task(label, total=len(tasks))
-        progress.start()
-    try:
-        if parallel:
-            with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-                for result in pool.map(fn, tasks):
-                    results.append(result)
-                    if progress is not None:
-                        progress.advance(bar)
-        else:
-            for task in tasks:
-                results.append(fn(task))
-                if progress is not None:
-                    progress.advance(bar)
-    finally:
-        if progress is not None:
-            progress.stop()
-    return results
-
-
-def iteration_study(params: AoaGridParams, runs: int, seed: int, options: ReproduceOptions,
-                    map_runs: int = 0) -> dict[str, np.ndarray]:
+def iteration_study(params: AoaGridParams, runs: int, ctx: ReproduceContext, map_runs: int = 0
+                    ) -> dict[str, np.ndarray]:
     """Errors (J_MAX + 1, runs × non-anchors) per "{estimator}/L{l}/{pos|heading}", pooled;
     the MAP reference on the first `map_runs` snapshots ("map/..."); "rows_per_vehicle"."""
-    parts = _map(_snapshot_errors, [(params, seed, r, r < map_runs) for r in range(runs)], options,
-                 "aoa-grid: iterations")
+    parts = ctx.map(_snapshot_errors, [(params, ctx.seed, r, r < map_runs) for r in range(runs)],
+                    "aoa-grid: iterations")
     return {key: np.concatenate([p[key] for p in parts if key in p], axis=1)
             for key in {k for p in parts for k in p}}
 
@@ -209,13 +179,13 @@ def iteration_study(params: AoaGridParams, runs: int, seed: int, options: Reprod
 # ----------------------------------------------------------------------------
 
 
-def _sweep_curves(base: ExperimentConfig, key: str, values: Sequence[float], progress: bool
+def _sweep_curves(ctx: ReproduceContext, base: ExperimentConfig, key: str, values: Sequence[float]
                   ) -> dict[str, dict[str, list[float]]]:
     """curves[estimator]["pos" | "heading"] = non-anchor RMSE at each value, and
     curves[estimator]["within"] = the share of non-anchor vehicles within the target."""
     curves: dict[str, dict[str, list[float]]] = {
         n: {"pos": [], "heading": [], "within": []} for n in ESTIMATORS}
-    for _, result in run_sweep(base, key, values, progress=progress):
+    for _, result in ctx.sweep(base, key, values):
         anchors = anchor_ids(result.config.scenario_params)  # type: ignore[arg-type]
         for name in ESTIMATORS:
             _, table = result.errors(name)
@@ -232,26 +202,13 @@ def _sweep_curves(base: ExperimentConfig, key: str, values: Sequence[float], pro
 # ----------------------------------------------------------------------------
 
 
-def _figure(n_panels: int, title: str):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = 1 if n_panels <= 2 else 2
-    fig, axes = plt.subplots(rows, 2, figsize=(10, 4 * rows - 0.5 * (rows - 1)), squeeze=False)
-    fig.suptitle(title)
-    return plt, fig, axes.ravel()
-
-
-def _save(plt, fig, path: Path) -> None:
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+def _figure(n_panels: int, title: str) -> tuple[Any, np.ndarray]:
+    """Two panels a row, 10 inches wide."""
+    return figure_panels(n_panels, title, cols=2, size=(5.0, 4.0 if n_panels <= 2 else 3.75))
 
 
 def _fig4(curves: dict[str, dict[str, list[float]]], path: Path, runs: int) -> None:
-    plt, fig, axes = _figure(2, f"Fig. 4: RMSE vs linearization iterations J ({runs} snapshots)")
+    fig, axes = _figure(2, f"Fig. 4: RMSE vs linearization iterations J ({runs} snapshots)")
     J = np.arange(J_MAX + 1)
     for ax, kind, unit in ((axes[0], "pos", "position RMSE [m]"),
                            (axes[1], "heading", "heading RMSE [rad]")):
@@ -265,29 +222,27 @@ def _fig4(curves: dict[str, dict[str, list[float]]], path: Path, runs: int) -> N
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    _save(plt, fig, path)
+    save_figure(fig, path)
 
 
 def _fig5(errors: dict[str, np.ndarray], path: Path, runs: int) -> None:
-    plt, fig, axes = _figure(2, f"Fig. 5: CDF of the errors, L = 3 ({runs} snapshots)")
+    fig, axes = _figure(2, f"Fig. 5: CDF of the errors, L = 3 ({runs} snapshots)")
     for ax, kind, unit, target in ((axes[0], "pos", "position error [m]", TARGET_POSITION),
                                    (axes[1], "heading", "heading error [rad]", TARGET_HEADING)):
         for i, J in enumerate(CDF_ITERATIONS):
-            x, p = ecdf(errors[f"plbp/L3/{kind}"][J])
-            ax.step(x, p, where="post", color=f"C{i}", label=f"posterior LF, J = {J}")
-        x, p = ecdf(errors[f"prior-lbp/L3/{kind}"][5])
-        ax.step(x, p, where="post", color="0.4", linestyle=":", label="prior LF, J = 5")
+            cdf_step(ax, errors[f"plbp/L3/{kind}"][J], color=f"C{i}", label=f"posterior LF, J = {J}")
+        cdf_step(ax, errors[f"prior-lbp/L3/{kind}"][5], color="0.4", linestyle=":", label="prior LF, J = 5")
         ax.axvline(target, color="red", lw=0.8, linestyle="--")
         ax.set_xlabel(unit)
         ax.set_ylabel("CDF")
         ax.set_xlim(0, 3 * target)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8, loc="lower right")
-    _save(plt, fig, path)
+    save_figure(fig, path)
 
 
 def _fov_figure(curves: dict[str, dict[str, list[float]]], path: Path, runs: int) -> None:
-    plt, fig, axes = _figure(
+    fig, axes = _figure(
         2, f"Beyond the paper: field of view Δ, J = 5, L = 3 ({runs} snapshots per point)")
     degrees = np.degrees(FOV_SWEEP)
     for name, style in (("plbp", "-o"), ("prior-lbp", ":s")):
@@ -301,11 +256,11 @@ def _fov_figure(curves: dict[str, dict[str, list[float]]], path: Path, runs: int
         ax.set_xlabel("Δ, half-width of each array's field of view [deg]")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    _save(plt, fig, path)
+    save_figure(fig, path)
 
 
 def _fig6(sweeps: dict[str, dict[str, dict[str, list[float]]]], path: Path, runs: int) -> None:
-    plt, fig, axes = _figure(
+    fig, axes = _figure(
         4, f"Fig. 6: RMSE vs scenario parameters, J = 5, L = 3 ({runs} snapshots per point)")
     for ax, (key, (label, values)) in zip(axes, SWEEPS.items(), strict=True):
         curves = sweeps[key]
@@ -325,7 +280,7 @@ def _fig6(sweeps: dict[str, dict[str, dict[str, list[float]]]], path: Path, runs
         if key == "prior_position_std":
             lines = ax.get_lines() + twin.get_lines()
             ax.legend(lines, [line.get_label() for line in lines], fontsize=7)
-    _save(plt, fig, path)
+    save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------
@@ -333,16 +288,14 @@ def _fig6(sweeps: dict[str, dict[str, dict[str, list[float]]]], path: Path, runs
 # ----------------------------------------------------------------------------
 
 
-def run(options: ReproduceOptions) -> Path:
-    out = Path(options.out)
-    out.mkdir(parents=True, exist_ok=True)
-    runs = options.runs or (2 if options.quick else DEFAULT_RUNS)
-    sweep_runs = options.runs or (1 if options.quick else DEFAULT_SWEEP_RUNS)
+def compute(ctx: ReproduceContext) -> dict[str, Any]:
+    runs, out = ctx.runs, ctx.out
+    sweep_runs = ctx.runs_or(DEFAULT_SWEEP_RUNS, quick=1)
     params: AoaGridParams = get_preset("aoa-grid").params  # type: ignore[assignment]
 
     # Figs. 4–5: per-iteration errors
-    map_runs = min(runs, 1 if options.quick else DEFAULT_MAP_RUNS)
-    errors = iteration_study(params, runs, options.seed, options, map_runs)
+    map_runs = min(runs, 1 if ctx.quick else DEFAULT_MAP_RUNS)
+    errors = iteration_study(params, runs, ctx, map_runs)
     curves4: dict[str, dict[str, list[float]]] = {}
     for key, e in errors.items():
         if "/L" in key:
@@ -371,17 +324,14 @@ def run(options: ReproduceOptions) -> Path:
     }
 
     # Fig. 6: sweeps (plbp and prior-lbp at their defaults J = 5, L = 3)
-    base = ExperimentConfig.build("aoa-grid", list(ESTIMATORS), runs=sweep_runs, seed=options.seed,
-                                  backend=options.backend, workers=options.workers)
-    sweeps = {key: _sweep_curves(base, key, values, options.progress)
-              for key, (_, values) in SWEEPS.items()}
+    base = ctx.config("aoa-grid", runs=sweep_runs)
+    sweeps = {key: _sweep_curves(ctx, base, key, values) for key, (_, values) in SWEEPS.items()}
     _fig6(sweeps, out / "fig6_rmse_vs_parameters.png", sweep_runs)
-    fov = _sweep_curves(base, "field_of_view", FOV_SWEEP, options.progress)
+    fov = _sweep_curves(ctx, base, "field_of_view", FOV_SWEEP)
     _fov_figure(fov, out / "field_of_view.png", sweep_runs)
 
-    data = {
-        "runs": runs, "sweep_runs": sweep_runs, "seed": options.seed,
-        "scenario_params": params.to_dict(), "j_max": J_MAX,
+    return {
+        "sweep_runs": sweep_runs, "scenario_params": params.to_dict(), "j_max": J_MAX,
         "fig4": curves4,
         "fig5_within_target": within,
         "map_reference": reference,
@@ -389,16 +339,13 @@ def run(options: ReproduceOptions) -> Path:
                  for key, (_, values) in SWEEPS.items()},
         "field_of_view": {"values": list(FOV_SWEEP), "curves": fov},
     }
-    (out / "data.json").write_text(json.dumps(data, indent=2) + "\n")
-    (out / "report.md").write_text(_report(data, options.quick))
-    return out
 
 
 def _pct(value: float | None) -> str:
     return "–" if value is None else f"{100 * value:.1f} %"
 
 
-def _report(data: dict[str, Any], quick: bool) -> str:
+def report(data: dict[str, Any]) -> list[str]:
     c4, w5, c6 = data["fig4"], data["fig5_within_target"], data["fig6"]
     fov = data["field_of_view"]
     ref = data["map_reference"]
@@ -434,7 +381,7 @@ def _report(data: dict[str, Any], quick: bool) -> str:
         "iterations per linearization unless stated. The paper's map is not available: `aoa-grid` "
         "is one dense Manhattan intersection (see `cooploc.scenarios.aoa_grid`).",
     ]
-    if quick:
+    if data["quick"]:
         lines += ["", "**Quick mode**: a handful of snapshots — checks the pipeline; the numbers "
                   "are not converged Monte Carlo averages."]
     lines += [
@@ -494,23 +441,18 @@ def _report(data: dict[str, Any], quick: bool) -> str:
         + "; heading RMSE " + ", ".join(f"{np.degrees(v):.0f}°: {format_number(h)} rad" for v, h in
                                         zip(fov["values"], fov["curves"]["plbp"]["heading"], strict=True))
         + ". The paper's statement holds on our scene for the wider fields of view.",
-        "",
-        "![Fig. 4](fig4_rmse_vs_iterations.png)",
-        "",
-        "![Fig. 5](fig5_error_cdf.png)",
-        "",
-        "![Fig. 6](fig6_rmse_vs_parameters.png)",
-        "",
-        "![Field of view](field_of_view.png)",
-        "",
-        "All numbers: `data.json`.",
     ]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 EXPERIMENT = PaperExperiment(
     name="plbp",
     title="AoA cooperative localization with posterior-linearization BP, Figs. 4–6",
     paper="002_dfdb230c2e4252cd.txt",
-    run=run,
+    compute=compute,
+    report=report,
+    compared=ESTIMATORS,
+    runs=DEFAULT_RUNS,
+    figures=(("Fig. 4", "fig4_rmse_vs_iterations.png"), ("Fig. 5", "fig5_error_cdf.png"),
+             ("Fig. 6", "fig6_rmse_vs_parameters.png"), ("Field of view", "field_of_view.png")),
 )

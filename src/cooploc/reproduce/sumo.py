@@ -29,22 +29,16 @@ are not the paper's setting.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 
-from cooploc.estimators import estimators
-from cooploc.experiment import ExperimentConfig, ExperimentResult, run_experiment, run_generators
-from cooploc.metrics import FEATURE, VEHICLE, ecdf, rmse
-from cooploc.plots import format_number
-from cooploc.reproduce import PaperExperiment, ReproduceOptions
-from cooploc.scenarios.sumo import TINY_GRID, ZONES, traffic, traffic_seed, zone_of
+from cooploc.experiment import ExperimentConfig, ExperimentResult, run_generators
+from cooploc.metrics import FEATURE, VEHICLE, rmse
+from cooploc.plots import cdf_step, format_number, pyplot, save_figure
+from cooploc.reproduce.base import PaperExperiment, ReproduceContext
+from cooploc.scenarios.sumo import TINY_GRID, traffic, traffic_seed, zone_of
 
 __all__ = ["COMPARED", "EXPERIMENT", "binned_rmse", "zone_errors"]
 
@@ -56,6 +50,7 @@ FULL = {"duration": 1800.0, "warmup": 300.0}
 QUICK = {**TINY_GRID, "grid_size": 3, "duration": 30.0, "zone_radii": (40.0, 80.0)}
 BIN_SECONDS, QUICK_BIN_SECONDS = 300.0, 10.0
 REGULATIONS = ("tlr", "vsr")
+ZONES = ("A", "B", "C")                # the GNSS zones 0, 1, 2 of `zone_of`
 PAPER_GNSS_95 = {"area 5": 5.0}        # m, §VI: 95 % of the GNSS error in area 5
 PAPER_ICP_95 = {"area 5": 1.0}         # m, ICP-DA-LC in area 5
 
@@ -104,24 +99,19 @@ def zone_errors(result: ExperimentResult, meta: list[dict[str, Any]], name: str
     return {ZONES[z]: table.err_pos[zones == z] for z in range(3)}
 
 
-def run(options: ReproduceOptions) -> Path:
-    out = Path(options.out)
-    out.mkdir(parents=True, exist_ok=True)
-    compared = [n for n in COMPARED if n in estimators()]
-    runs = options.runs or 1
-    network = "grid" if options.quick else NETWORK
-    overrides = QUICK if options.quick else FULL
-    bin_seconds = QUICK_BIN_SECONDS if options.quick else BIN_SECONDS
+def compute(ctx: ReproduceContext) -> dict[str, Any]:
+    compared = ctx.compared
+    network = "grid" if ctx.quick else NETWORK
+    overrides = QUICK if ctx.quick else FULL
+    bin_seconds = QUICK_BIN_SECONDS if ctx.quick else BIN_SECONDS
 
     results: dict[str, ExperimentResult] = {}
     meta: dict[str, list[dict[str, Any]]] = {}
     for regulation in REGULATIONS:
-        config = ExperimentConfig.build(f"sumo-{network}-{regulation}", compared,
-                                        scenario_overrides=overrides, runs=runs, seed=options.seed,
-                                        backend=options.backend, workers=options.workers)
+        config = ctx.config(f"sumo-{network}-{regulation}", scenario_overrides=overrides)
         params = config.scenario_params
         n_bins = max(1, int(np.ceil(params.n_steps * params.dt / bin_seconds)))
-        results[regulation] = run_experiment(config, progress=options.progress)
+        results[regulation] = ctx.run(config)
         meta[regulation] = _traffic_meta(config, compared, bin_seconds, n_bins)
 
     fig16: dict[str, dict[str, dict[str, list[float | None]]]] = {}
@@ -144,20 +134,16 @@ def run(options: ReproduceOptions) -> Path:
     fig17 = {name: {z: {"n": int(e.size), "p50": _pct(e, 50), "p95": _pct(e, 95), "rmse": _none(rmse(e))}
                     for z, e in by_zone.items()} for name, by_zone in zones.items()}
 
-    _plot_fig16(fig16, bin_seconds, n_bins, out / "fig16_rmse_over_time.png",
-                f"SUMO {network}: 5-minute RMSE, TLR (solid) vs VSR (dashed)" if not options.quick
+    _plot_fig16(fig16, bin_seconds, n_bins, ctx.out / "fig16_rmse_over_time.png",
+                f"SUMO {network}: 5-minute RMSE, TLR (solid) vs VSR (dashed)" if not ctx.quick
                 else f"SUMO {network} (quick): {bin_seconds:.0f}-s RMSE, TLR (solid) vs VSR (dashed)")
-    _plot_fig17(zones, out / "fig17_error_cdf_per_zone.png",
+    _plot_fig17(zones, ctx.out / "fig17_error_cdf_per_zone.png",
                 f"SUMO {network}, TLR: CDF of vehicle position error per GNSS zone")
-    data = {
-        "runs": runs, "seed": options.seed, "quick": options.quick, "compared": compared,
+    return {
         "network": network, "bin_seconds": bin_seconds,
         "scenario_params": params.to_dict(),
         "fig16": fig16, "overall": overall, "vehicles_in_network": counts, "fig17": fig17,
     }
-    (out / "data.json").write_text(json.dumps(data, indent=2) + "\n")
-    (out / "report.md").write_text(_report(data))
-    return out
 
 
 def _none(value: float) -> float | None:
@@ -174,7 +160,7 @@ def _colour(i: int, name: str) -> str:
 
 def _plot_fig16(fig16: dict[str, Any], bin_seconds: float, n_bins: int, path: Path, title: str) -> None:
     centres = (np.arange(n_bins) + 0.5) * bin_seconds / 60.0
-    fig, axes = plt.subplots(2, 1, figsize=(7.5, 7.0), sharex=True)
+    fig, axes = pyplot().subplots(2, 1, figsize=(7.5, 7.0), sharex=True)
     fig.suptitle(title)
     for i, (name, by_reg) in enumerate(fig16.items()):
         for regulation, style in (("tlr", "-"), ("vsr", "--")):
@@ -194,32 +180,27 @@ def _plot_fig16(fig16: dict[str, Any], bin_seconds: float, n_bins: int, path: Pa
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def _plot_fig17(zones: dict[str, dict[str, np.ndarray]], path: Path, title: str) -> None:
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.6), sharey=True)
+    fig, axes = pyplot().subplots(1, 3, figsize=(12, 3.6), sharey=True)
     fig.suptitle(title)
     for ax, zone in zip(axes, ZONES, strict=True):
         for i, (name, by_zone) in enumerate(zones.items()):
             e = by_zone[zone]
             if e.size:
-                x, p = ecdf(e)
-                ax.step(x, p, where="post", color=_colour(i, name), label=name,
-                        linestyle="--" if name == "oracle-kf" else "-")
+                cdf_step(ax, e, color=_colour(i, name), label=name,
+                         linestyle="--" if name == "oracle-kf" else "-")
         ax.set_title(f"zone {zone}")
         ax.set_xlabel("vehicle position error [m]")
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("CDF")
     axes[0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
-def _report(data: dict[str, Any]) -> str:
+def report(data: dict[str, Any]) -> list[str]:
     overall, fig17, compared = data["overall"], data["fig17"], data["compared"]
     gnss = overall.get("gnss-kf", {})
     method = METHOD if METHOD in compared else None
@@ -289,19 +270,18 @@ def _report(data: dict[str, Any]) -> str:
         "Differences from the paper: SUMO's Berlin-Adlershof network and random demand instead "
         "of the calibrated Turin arterial (AIMSUN); GNSS zones are rings around the signalised "
         "core; our map areas are the three zones. See `cooploc.scenarios.sumo`.",
-        "",
-        "![Fig. 16](fig16_rmse_over_time.png)",
-        "",
-        "![Fig. 17](fig17_error_cdf_per_zone.png)",
-        "",
-        "All numbers: `data.json`.",
     ]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 EXPERIMENT = PaperExperiment(
     name="sumo",
     title="Brambilla et al. 2020 §VI, Figs. 16–17 on SUMO urban traffic (TLR vs VSR)",
     paper="003_dd51a52f1e371d91.txt",
-    run=run,
+    compute=compute,
+    report=report,
+    compared=COMPARED,
+    runs=1,
+    quick_runs=1,
+    figures=(("Fig. 16", "fig16_rmse_over_time.png"), ("Fig. 17", "fig17_error_cdf_per_zone.png")),
 )

@@ -18,24 +18,16 @@ default to 20 per scenario.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cooploc.estimators import estimators, make_estimator
-from cooploc.experiment import (
-    ExperimentConfig,
-    ExperimentResult,
-    run_experiment,
-    run_generators,
-)
+from cooploc.experiment import ExperimentConfig, ExperimentResult
 from cooploc.metrics import VEHICLE, total_rmse
-from cooploc.plots import format_number
-from cooploc.reproduce import PaperExperiment, ReproduceOptions
+from cooploc.plots import figure_panels, format_number, pyplot, save_figure, trajectory_panel
+from cooploc.reproduce.base import PaperExperiment, ReproduceContext, replay
 from cooploc.results import summarize
-from cooploc.scenarios import get_preset
 
 __all__ = ["AXES_LABEL", "AXES_UKF_LABEL", "COMPARED", "EXPERIMENT", "SCENARIOS", "paired_difference"]
 
@@ -43,7 +35,6 @@ SCENARIOS = ("zhang2016-cv", "zhang2016-ct2", "zhang2016-ct4")
 COMPARED = ("sme-pf", "kf-known-da", "gm-phd", "sme-ukf")
 AXES_LABEL = "sme-pf (eq. 17 per axis)"
 AXES_UKF_LABEL = "sme-ukf (eq. 17 per axis)"
-DEFAULT_RUNS = 20
 QUICK = {"n_steps": 15}
 QUICK_ESTIMATORS = {"sme-pf": {"n_particles": 300}}  # quick mode checks the pipeline only
 
@@ -63,62 +54,37 @@ def paired_difference(a: list[float], b: list[float]) -> tuple[float, float]:
     return float(d.mean()), se
 
 
-def _config(scenario: str, names: list[str], options: ReproduceOptions, runs: int,
+def _config(ctx: ReproduceContext, scenario: str, names: list[str],
             overrides: dict[str, dict[str, Any]] | None = None) -> ExperimentConfig:
     overrides = dict(overrides or {})
-    if options.quick and "sme-pf" in names:
+    if ctx.quick:
         overrides["sme-pf"] = {**QUICK_ESTIMATORS["sme-pf"], **overrides.get("sme-pf", {})}
-    return ExperimentConfig.build(scenario, names, scenario_overrides=QUICK if options.quick else {},
-                                  estimator_overrides=overrides, runs=runs, seed=options.seed,
-                                  backend=options.backend, workers=options.workers)
+    return ctx.config(scenario, names, scenario_overrides=QUICK if ctx.quick else {},
+                      estimator_overrides=overrides)
 
 
-def _trajectories(scenario: str, names: list[str], options: ReproduceOptions) -> dict[str, Any]:
+def _trajectories(config: ExperimentConfig) -> dict[str, Any]:
     """Truth and estimates of run 0 (the same run the experiment scores first)."""
-    preset = get_preset(scenario)
-    params = preset.params.with_overrides(QUICK if options.quick else {})
-    scenario_rng, rngs = run_generators(options.seed, 0, names)
-    rec = preset.generate(scenario_rng, params)
-    pos = list(rec.setup.vehicle_layout.position)
-    out: dict[str, Any] = {"truth": rec.truth.vehicle_states[:, :, pos].tolist(), "estimates": {}}
-    for name in names:
-        cls = estimators()[name]
-        params = cls.Params().with_overrides(QUICK_ESTIMATORS.get(name, {}) if options.quick else {})
-        est = make_estimator(name, rec.setup, params, rngs[name], rec.truth)
-        out["estimates"][name] = [est.step(f).vehicles.mean[:, pos].tolist() for f in rec.frames]
-    return out
+    recording, estimates = replay(config, 0)
+    pos = list(recording.setup.vehicle_layout.position)
+    return {"truth": recording.truth.vehicle_states[:, :, pos].tolist(),
+            "estimates": {name: [e.vehicles.mean[:, pos].tolist() for e in steps]
+                          for name, steps in estimates.items()}}
 
 
 def _fig2(data: dict[str, Any], path: Path) -> None:
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(SCENARIOS), figsize=(13, 4.4))
+    fig, axes = figure_panels(len(SCENARIOS), "Zhang 2016 Fig. 2: true trajectories and estimates (run 0)",
+                              size=(13 / 3, 4.4))
     markers = {"sme-pf": "o", "kf-known-da": "x", "gm-phd": "+", "sme-ukf": "s"}
     for ax, scenario in zip(axes, SCENARIOS, strict=True):
-        traj = data[scenario]
-        truth = np.asarray(traj["truth"])
-        for i in range(truth.shape[1]):
-            ax.plot(truth[:, i, 0], truth[:, i, 1], "k-", lw=1.2, label="truth" if i == 0 else None)
-        for name, steps in traj["estimates"].items():
-            points = np.concatenate([np.asarray(s).reshape(-1, 2) for s in steps])
-            ax.plot(points[:, 0], points[:, 1], markers.get(name, "."), ms=2.5, alpha=0.6,
-                    label=name, mfc="none")
-        ax.set_title(scenario)
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.set_aspect("equal", adjustable="datalim")
+        trajectory_panel(ax, data[scenario]["truth"], data[scenario]["estimates"], scenario, markers)
     axes[0].legend(fontsize=7)
-    fig.suptitle("Zhang 2016 Fig. 2: true trajectories and estimates (run 0)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
-def _fig3(data: dict[str, Any], path: Path) -> None:
-    import matplotlib.pyplot as plt
-
+def _fig3(data: dict[str, Any], runs: int, path: Path) -> None:
     names = list(data[SCENARIOS[0]]["per_run_total"])
-    fig, ax = plt.subplots(figsize=(8.5, 4.2))
+    fig, ax = pyplot().subplots(figsize=(8.5, 4.2))
     width = 0.8 / len(names)
     x = np.arange(len(SCENARIOS))
     for i, name in enumerate(names):
@@ -130,27 +96,21 @@ def _fig3(data: dict[str, Any], path: Path) -> None:
     ax.set_ylabel("total error, eq. (20) [m]")
     ax.set_yscale("log")
     ax.legend(fontsize=8)
-    ax.set_title(f"Zhang 2016 Fig. 3: total error ({data['runs']} runs, ± standard error)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    ax.set_title(f"Zhang 2016 Fig. 3: total error ({runs} runs, ± standard error)")
+    save_figure(fig, path)
 
 
-def run(options: ReproduceOptions) -> Path:
-    out = Path(options.out)
-    out.mkdir(parents=True, exist_ok=True)
-    compared = [n for n in COMPARED if n in estimators()]
-    runs = options.runs or (2 if options.quick else DEFAULT_RUNS)
-    data: dict[str, Any] = {"runs": runs, "seed": options.seed, "compared": compared, "quick": options.quick}
+def compute(ctx: ReproduceContext) -> dict[str, Any]:
+    data: dict[str, Any] = {}
+    trajectories = {}
     for scenario in SCENARIOS:
-        result = run_experiment(_config(scenario, compared, options, runs), progress=options.progress)
+        config = _config(ctx, scenario, ctx.compared)
+        result = ctx.run(config)
         summary = summarize(result)
-        per_run = {name: per_run_total(result, name) for name in compared}
-        axes_names = [n for n in ("sme-pf", "sme-ukf") if n in compared]
+        per_run = {name: per_run_total(result, name) for name in ctx.compared}
+        axes_names = [n for n in ("sme-pf", "sme-ukf") if n in ctx.compared]
         if axes_names:  # the paper's literal eq. (17), same runs
-            axes = run_experiment(_config(scenario, axes_names, options, runs,
-                                          {n: {"form": "axes"} for n in axes_names}),
-                                  progress=options.progress)
+            axes = ctx.run(_config(ctx, scenario, axes_names, {n: {"form": "axes"} for n in axes_names}))
             for name, label in (("sme-pf", AXES_LABEL), ("sme-ukf", AXES_UKF_LABEL)):
                 if name in axes_names:
                     per_run[label] = per_run_total(axes, name)
@@ -160,12 +120,10 @@ def run(options: ReproduceOptions) -> Path:
             "steps_per_second": {n: e["steps_per_second"] for n, e in summary["estimators"].items()},
             "scenario_params": summary["params"],
         }
-    trajectories = {s: _trajectories(s, compared, options) for s in SCENARIOS}
-    _fig2(trajectories, out / "fig2_trajectories.png")
-    _fig3(data, out / "fig3_total_error.png")
-    (out / "data.json").write_text(json.dumps({**data, "fig2": trajectories}) + "\n")
-    (out / "report.md").write_text(_report(data))
-    return out
+        trajectories[scenario] = _trajectories(config)
+    _fig2(trajectories, ctx.out / "fig2_trajectories.png")
+    _fig3(data, ctx.runs, ctx.out / "fig3_total_error.png")
+    return {**data, "fig2": trajectories}
 
 
 def _verdict(data: dict[str, Any], scenario: str, a: str, b: str) -> str:
@@ -181,7 +139,7 @@ def _verdict(data: dict[str, Any], scenario: str, a: str, b: str) -> str:
     return f"{a} < {b}: {word} ({a} − {b} = {mean:+.3f} ± {se:.3f} m, z = {z:+.1f})"
 
 
-def _report(data: dict[str, Any]) -> str:
+def report(data: dict[str, Any]) -> list[str]:
     def cell(scenario: str, name: str) -> str:
         values = data[scenario]["per_run_total"].get(name)
         if not values:
@@ -242,19 +200,18 @@ def _report(data: dict[str, Any]) -> str:
         "is good.",
         "- The CT scenarios turn at ±0.05 rad/s (our reading of ±0.05°, see "
         "`cooploc.scenarios.zhang2016`); every filter uses the CV model there.",
-        "",
-        "![Fig. 2](fig2_trajectories.png)",
-        "",
-        "![Fig. 3](fig3_total_error.png)",
-        "",
-        "All numbers: `data.json`.",
     ]
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 EXPERIMENT = PaperExperiment(
     name="zhang2016",
     title="Zhang, Hinz, Gulati, Clarke & Knoll 2016, Figs. 2–3",
     paper="001_80a6c560b7fdaa20.txt",
-    run=run,
+    compute=compute,
+    report=report,
+    compared=COMPARED,
+    runs=20,
+    figures=(("Fig. 2", "fig2_trajectories.png"), ("Fig. 3", "fig3_total_error.png")),
+    data_indent=None,    # data.json holds the run-0 trajectories of Fig. 2
 )

@@ -1,0 +1,227 @@
+"""What every paper experiment shares: its options, its run context, its entry.
+
+A paper module declares one `PaperExperiment` — name, title, paper file, the
+estimators the paper compares, default and quick run counts, the figure files — and
+two functions of its own:
+
+- `compute(context) -> data`: the runs, sweeps and figures; every number the figures
+  show goes into the returned dict;
+- `report(data) -> lines`: the Markdown text that sets the paper's statements beside
+  ours.
+
+`PaperExperiment.run(options)` does the rest: it keeps the compared estimators that
+are registered (a method issue only registers its estimator), resolves the run count,
+makes the results folder, writes `data.json` (the common keys ``runs``, ``seed``,
+``quick`` and ``compared`` ahead of the module's data) and `report.md` (the module's
+text, then the figures and a pointer to data.json).
+
+The `ReproduceContext` handed to `compute` builds `ExperimentConfig`s with the
+options' seed, backend and workers and runs them (or a sweep, or any function over
+tasks) with the options' progress bars.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cooploc.experiment import (
+    ExperimentConfig,
+    ExperimentResult,
+    estimate,
+    run_experiment,
+    run_generators,
+    run_sweep,
+)
+from cooploc.registry import estimators, get_preset, make_estimator
+from cooploc.types import Estimate, Recording
+
+__all__ = [
+    "PaperExperiment",
+    "ReproduceContext",
+    "ReproduceOptions",
+    "registered",
+    "replay",
+    "replay_recording",
+]
+
+
+@dataclass(frozen=True)
+class ReproduceOptions:
+    """How to run a paper experiment.
+
+    Attributes
+    ----------
+    out : output folder.
+    runs : Monte Carlo runs per point (None: the experiment's default).
+    seed : the one seed of every number.
+    backend, workers : as for `cooploc run`.
+    quick : a small version (few runs, short trajectories) to check the pipeline.
+    progress : show progress bars.
+    """
+
+    out: Path
+    runs: int | None = None
+    seed: int = 0
+    backend: str = "processes"
+    workers: int | None = None
+    quick: bool = False
+    progress: bool = False
+
+
+def registered(names: Sequence[str]) -> list[str]:
+    """The registered ones of `names`, in their order."""
+    known = estimators()
+    return [n for n in names if n in known]
+
+
+@dataclass(frozen=True)
+class ReproduceContext:
+    """What a paper's computation needs besides its own code.
+
+    Attributes
+    ----------
+    options : as given on the command line.
+    out : the results folder (exists).
+    runs : Monte Carlo runs per point: ``--runs``, else the experiment's quick or default count.
+    compared : the registered ones of the paper's compared estimators.
+    """
+
+    options: ReproduceOptions
+    out: Path
+    runs: int
+    compared: list[str]
+
+    @property
+    def quick(self) -> bool:
+        return self.options.quick
+
+    @property
+    def seed(self) -> int:
+        return self.options.seed
+
+    def runs_or(self, default: int, quick: int) -> int:
+        """A second run count (e.g. per sweep point): ``--runs``, else `quick` or `default`."""
+        return self.options.runs or (quick if self.quick else default)
+
+    def config(self, scenario: str, names: Sequence[str] | None = None, *, runs: int | None = None,
+               scenario_overrides: Mapping[str, Any] | None = None,
+               estimator_overrides: Mapping[str, Mapping[str, Any]] | None = None) -> ExperimentConfig:
+        """The experiment of `names` (default: `compared`) on a scenario preset, seeded, with
+        the options' backend and workers; overrides of estimators not in `names` are ignored."""
+        names = list(self.compared if names is None else names)
+        overrides = {k: v for k, v in (estimator_overrides or {}).items() if k in names}
+        return ExperimentConfig.build(scenario, names, scenario_overrides=scenario_overrides,
+                                      estimator_overrides=overrides, runs=runs or self.runs,
+                                      seed=self.seed, backend=self.options.backend,
+                                      workers=self.options.workers)
+
+    def run(self, config: ExperimentConfig) -> ExperimentResult:
+        """Every run of `config` (progress bar if asked)."""
+        return run_experiment(config, progress=self.options.progress)
+
+    def sweep(self, config: ExperimentConfig, key: str, values: Sequence[Any]
+              ) -> list[tuple[Any, ExperimentResult]]:
+        """`config` at each value of scenario parameter `key` (common random numbers)."""
+        return run_sweep(config, key, values, progress=self.options.progress)
+
+    def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], label: str) -> list[Any]:
+        """`fn` over `tasks`, results in task order: worker processes unless the backend is
+        serial (for work that is not an `ExperimentConfig`); a progress bar if asked."""
+        workers = self.options.workers or os.cpu_count() or 1
+        parallel = self.options.backend != "serial" and workers > 1 and len(tasks) > 1
+        progress = None
+        if self.options.progress:
+            from rich.progress import Progress
+            progress = Progress()
+            bar = progress.add_task(label, total=len(tasks))
+            progress.start()
+        results: list[Any] = []
+        try:
+            if parallel:
+                with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
+                    for result in pool.map(fn, tasks):
+                        results.append(result)
+                        if progress is not None:
+                            progress.advance(bar)
+            else:
+                for task in tasks:
+                    results.append(fn(task))
+                    if progress is not None:
+                        progress.advance(bar)
+        finally:
+            if progress is not None:
+                progress.stop()
+        return results
+
+
+def replay_recording(config: ExperimentConfig, run: int) -> Recording:
+    """The recording of run `run` of `config`, simulated again from the run's seed."""
+    scenario_rng, _ = run_generators(config.seed, run, [e.name for e in config.estimators])
+    return get_preset(config.scenario).generate(scenario_rng, config.scenario_params)
+
+
+def replay(config: ExperimentConfig, run: int = 0) -> tuple[Recording, dict[str, list[Estimate]]]:
+    """Run `run` of `config` again, keeping what `run_experiment` scores and drops: the
+    recording and every estimator's estimates (smoothed where it smooths)."""
+    recording = replay_recording(config, run)
+    _, rngs = run_generators(config.seed, run, [e.name for e in config.estimators])
+    estimates = {}
+    for spec in config.estimators:
+        estimator = make_estimator(spec.name, recording.setup, spec.params, rngs[spec.name],
+                                   recording.truth)
+        estimates[spec.name] = estimate(estimator, recording)
+    return recording, estimates
+
+
+@dataclass(frozen=True)
+class PaperExperiment:
+    """A paper's whole experiment: `run(options)` writes figures, data.json and report.md.
+
+    Attributes
+    ----------
+    name, title : as `cooploc list` shows them.
+    paper : the paper's file in `papers/`.
+    compute : the runs and figures; returns the data of data.json.
+    report : data → the report's Markdown lines (the figures and the pointer to data.json
+        are appended).
+    compared : the estimators the paper compares (only the registered ones run).
+    runs, quick_runs : Monte Carlo runs per point, by default and with ``--quick``.
+    figures : (caption, file name) of each figure `compute` writes, in report order.
+    data_indent : JSON indentation of data.json (None: one line, for bulky data).
+    """
+
+    name: str
+    title: str
+    paper: str
+    compute: Callable[[ReproduceContext], dict[str, Any]]
+    report: Callable[[dict[str, Any]], list[str]]
+    compared: tuple[str, ...] = ()
+    runs: int = 20
+    quick_runs: int = 2
+    figures: tuple[tuple[str, str], ...] = ()
+    data_indent: int | None = 2
+
+    def run(self, options: ReproduceOptions) -> Path:
+        out = Path(options.out)
+        out.mkdir(parents=True, exist_ok=True)
+        runs = options.runs or (self.quick_runs if options.quick else self.runs)
+        context = ReproduceContext(options, out, runs, registered(self.compared))
+        data = {"runs": runs, "seed": options.seed, "quick": options.quick,
+                "compared": context.compared, **self.compute(context)}
+        (out / "data.json").write_text(json.dumps(data, indent=self.data_indent) + "\n")
+        (out / "report.md").write_text(self.markdown(data))
+        return out
+
+    def markdown(self, data: dict[str, Any]) -> str:
+        """report.md: the module's text, each figure, and the pointer to data.json."""
+        lines = list(self.report(data))
+        for caption, file in self.figures:
+            lines += ["", f"![{caption}]({file})"]
+        lines += ["", "All numbers: `data.json`."]
+        return "\n".join(lines) + "\n"
