@@ -38,7 +38,7 @@ from cooploc.experiment import ExperimentConfig, ExperimentResult, run_generator
 from cooploc.metrics import FEATURE, VEHICLE, rmse
 from cooploc.plots import cdf_step, format_number, pyplot, save_figure
 from cooploc.reproduce.base import PaperExperiment, ReproduceContext
-from cooploc.scenarios.sumo import TINY_GRID, traffic, traffic_seed, zone_of
+from cooploc.scenarios.sumo import REGULATIONS, TINY_GRID, ZONES, traffic, traffic_seed, zone_of
 
 __all__ = ["COMPARED", "EXPERIMENT", "binned_rmse", "zone_errors"]
 
@@ -49,8 +49,6 @@ FULL = {"duration": 1800.0, "warmup": 300.0}
 # a 3 × 3 grid: its inner junctions have conflicting streams, so TLR and VSR differ
 QUICK = {**TINY_GRID, "grid_size": 3, "duration": 30.0, "zone_radii": (40.0, 80.0)}
 BIN_SECONDS, QUICK_BIN_SECONDS = 300.0, 10.0
-REGULATIONS = ("tlr", "vsr")
-ZONES = ("A", "B", "C")                # the GNSS zones 0, 1, 2 of `zone_of`
 PAPER_GNSS_95 = {"area 5": 5.0}        # m, §VI: 95 % of the GNSS error in area 5
 PAPER_ICP_95 = {"area 5": 1.0}         # m, ICP-DA-LC in area 5
 
