@@ -45,7 +45,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when loaded from the file
 from common import environment, new_estimator, peak_memory, recording, write_json
 
+from cooploc import least_squares
 from cooploc.estimators import factor_graph as fg
+from cooploc.estimators.factor_graph import gtsam_backend
+from cooploc.experiment import estimate
 
 ESTIMATORS = ("gnss-kf", "fg-topology-old", "fg-topology-new", "fg-isam2")
 
@@ -61,10 +64,8 @@ def timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:
 
 
 def run_estimator(name: str, rec, params=None) -> list:
-    est = new_estimator(name, rec, params)
-    out = [est.step(f) for f in rec.frames]
-    smooth = getattr(est, "smooth", None)
-    return smooth() if callable(smooth) else out
+    """A whole run: construct, step through `rec`, smooth where the estimator can."""
+    return estimate(new_estimator(name, rec, params), rec)
 
 
 def naive_topology_factor(kind, keys_t, keys_prev, delta, s, sigma, huber=0.0):
@@ -94,12 +95,13 @@ def naive_topology_factor(kind, keys_t, keys_prev, delta, s, sigma, huber=0.0):
 
 @contextmanager
 def naive_factor():
-    original = fg._topology_custom_factor
-    fg._topology_custom_factor = naive_topology_factor
+    """GTSAM graphs built inside (batch and iSAM2) use the naive topology factor."""
+    original = gtsam_backend.topology_custom_factor
+    gtsam_backend.topology_custom_factor = naive_topology_factor
     try:
         yield
     finally:
-        fg._topology_custom_factor = original
+        gtsam_backend.topology_custom_factor = original
 
 
 def built_graph(name: str, rec):
@@ -113,7 +115,7 @@ def gtsam_cost(graph, x0: np.ndarray) -> float:
     """GTSAM LM (default parameters, as our solver's) from x0; the final cost."""
     import gtsam
 
-    result = gtsam.LevenbergMarquardtOptimizer(graph, fg._gtsam_values(x0),
+    result = gtsam.LevenbergMarquardtOptimizer(graph, fg.gtsam_values(x0),
                                                gtsam.LevenbergMarquardtParams()).optimize()
     return float(graph.error(result))
 
@@ -121,8 +123,8 @@ def gtsam_cost(graph, x0: np.ndarray) -> float:
 def sparse_cost(problem, x0: np.ndarray, covariances: bool = True) -> float:
     """Our banded LM from x0 (`problem` may be the GraphData: arrays built inside)."""
     if isinstance(problem, fg.GraphData):
-        problem = fg._Problem.of(problem)
-    return fg.solve_lm(problem, x0, covariances=covariances).cost
+        problem = fg.GraphProblem.of(problem)
+    return fg.solve_lm(problem.linearize, x0, covariances=covariances).cost
 
 
 def batch_solve(rec, repeats: int) -> dict[str, Any]:
@@ -143,7 +145,7 @@ def batch_solve(rec, repeats: int) -> dict[str, Any]:
             if not isinstance(graph.at(i), gtsam.CustomFactor):
                 native.add(graph.at(i))
         row["gtsam_no_topology"] = _solve_row(partial(gtsam_cost, native, x0), repeats)
-        problem = fg._Problem.of(data)
+        problem = fg.GraphProblem.of(data)
         row["sparse"] = _solve_row(partial(sparse_cost, problem, x0), repeats)
         row["sparse_without_covariances"] = _solve_row(
             partial(sparse_cost, problem, x0, covariances=False), repeats)
@@ -187,7 +189,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         "steps": steps, "repeats": repeats, "quick": args.quick,
         "estimators": {}, "batch_solve": {}, "isam2": {}, "horizon": {},
     }
-    fg._banded_inverse(np.ones((1, 1)))  # numba compile outside the timings
+    least_squares.compile_kernels()  # numba compile outside the timings
     for n in counts:
         rec = recording(f"gulati-{n}v", 0, {"n_steps": steps})
         rows = {}
@@ -206,7 +208,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         data, x0 = est.data, np.concatenate(est.initial)
         with naive_factor():
             graph = fg.gtsam_graph(data)
-        problem = fg._Problem.of(data)
+        problem = fg.GraphProblem.of(data)
         result["horizon"][str(T)] = {
             "gtsam_naive": _solve_row(partial(gtsam_cost, graph, x0), repeats),
             "sparse": _solve_row(partial(sparse_cost, problem, x0), repeats),

@@ -4,7 +4,8 @@ Oracles: numerical derivatives (Jacobians of the topology residuals, of the whol
 whitened system and of the GTSAM CustomFactors), a textbook Kalman/RTS smoother (the
 graph without topology is linear-Gaussian), GTSAM's own Levenberg–Marquardt on the
 same graph (our banded solver must find the same minimum and marginals), and
-invariances of the topology (radar pose, row order).
+invariances of the topology (radar pose, row order). The solver alone, on a problem
+without graph code: tests/test_least_squares.py.
 """
 
 from __future__ import annotations
@@ -20,8 +21,7 @@ from cooploc.estimators.factor_graph import (
     OLD,
     FactorGraphParams,
     GraphData,
-    _linearize,
-    _Problem,
+    GraphProblem,
     bilinear_topology,
     gtsam_graph,
     radar_topology,
@@ -104,10 +104,10 @@ def test_bilinear_form_is_the_polarisation_of_eq_8(rng: np.random.Generator) -> 
 def test_system_jacobian_matches_numerical_derivatives(kind: str, huber: float, seed: int) -> None:
     rec = recording([seed, 11], n=3, steps=6)
     data, x0 = graph(rec, kind)
-    problem = _Problem.of(data, huber)
+    problem = GraphProblem.of(data, huber)
     x = x0 + np.random.default_rng([seed, 12]).normal(0, 1.0, x0.shape)
-    r, J = _linearize(problem, x)
-    numeric = numerical_gradient(lambda y: _linearize(problem, y.reshape(-1, 2), False)[0],
+    r, J = problem.linearize(x)
+    numeric = numerical_gradient(lambda y: problem.linearize(y.reshape(-1, 2), False)[0],
                                  x.ravel())
     dense = J.toarray()
     if huber > 0:
@@ -125,9 +125,9 @@ def test_gtsam_custom_factors_match_ours(kind: str, seed: int) -> None:
 
     rec = recording([seed, 13], n=3, steps=5)
     data, x0 = graph(rec, kind)
-    problem = _Problem.of(data)
+    problem = GraphProblem.of(data)
     x = x0 + np.random.default_rng([seed, 14]).normal(0, 0.5, x0.shape)
-    ours_r, ours_J = _linearize(problem, x)
+    ours_r, ours_J = problem.linearize(x)
     values = gtsam.Values()
     for v, p in enumerate(x):
         values.insert(v, p)
@@ -244,8 +244,9 @@ def test_sparse_lm_equals_gtsam_lm(kind: str, seed: int) -> None:
 def test_banded_selected_inverse_equals_dense_inverse(seed: int) -> None:
     rec = recording([seed, 41], n=4, steps=12)
     data, x0 = graph(rec, NEW)
-    result = solve_lm(_Problem.of(data), x0)
-    _, J = _linearize(_Problem.of(data), result.x)
+    problem = GraphProblem.of(data)
+    result = solve_lm(problem.linearize, x0)
+    _, J = problem.linearize(result.x)
     dense = np.linalg.inv((J.T @ J).toarray())  # oracle: the dense inverse
     blocks = np.array([dense[2 * v:2 * v + 2, 2 * v:2 * v + 2] for v in range(data.n_vars)])
     np.testing.assert_allclose(result.cov, blocks, rtol=1e-8)

@@ -1,0 +1,168 @@
+"""`fg-topology-old`, `fg-topology-new`: batch Levenberg–Marquardt on the topology factor graph.
+
+Paper: Gulati et al., "Graph Based Vehicle Infrastructure Cooperative Localization"
+(IV 2017), §III: the graph of GPS (eqs. 6–7), odometry (eqs. 4–5) and one topology
+factor per step — old (eq. 8) or new (eqs. 9–16) — smoothed as one nonlinear least
+squares problem (eq. 17) by Levenberg–Marquardt, as the paper does with GTSAM.
+The graph: `graph.py`; the topology factors: `factors.py` (derivation:
+docs/factor_graph.md).
+
+Per step and at the end
+-----------------------
+`step` appends the frame's factors and returns the *filtered* estimate of the graph's
+linear part (GPS and odometry, `estimates.PositionFilter`), in O(N) per step.
+`smooth()` solves the whole graph and returns the smoothed estimate of every step;
+`cooploc.experiment.estimate` calls it at the end of a run (the paper scores smoothed
+positions) and counts its time as step time. `Estimate.info["topology"]` is the number
+of topology factors in the graph so far.
+
+Solvers
+-------
+`solver="sparse"` (default): `cooploc.least_squares.solve_lm` on `GraphProblem`, our
+LM on the sparse whitened Jacobian. Variables are ordered by step, so JᵀJ is banded
+(bandwidth < 2N per variable block) and each iteration is one banded Cholesky,
+O(T N³) for T steps; marginal covariances come from the banded selected inverse, also
+O(T N³). `solver="gtsam"`: GTSAM's LM on the same graph (`gtsam_backend.py`), the
+reference the tests check ours against. Damping follows GTSAM's default (λI, λ₀ = 1e-5,
+× 10 / ÷ 10), and so do the stopping tolerances. How the two compare in time:
+`benchmarks/factor_graph.py`; in accuracy against the paper's Table I:
+`cooploc reproduce gulati`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from cooploc import least_squares
+from cooploc.estimators.factor_graph.estimates import EstimateLayout, PositionFilter
+from cooploc.estimators.factor_graph.factors import NEW, OLD
+from cooploc.estimators.factor_graph.graph import GraphData, GraphProblem
+from cooploc.estimators.factor_graph.gtsam_backend import solve_gtsam
+from cooploc.least_squares import LMResult
+from cooploc.params import Params, param
+from cooploc.registry import register_estimator
+from cooploc.types import Estimate, FloatArray, Frame, Setup
+
+__all__ = [
+    "FactorGraphParams",
+    "FgTopologyNew",
+    "FgTopologyNewParams",
+    "FgTopologyOld",
+    "FgTopologyOldParams",
+]
+
+
+@dataclass(frozen=True)
+class FactorGraphParams(Params):
+    """Batch factor-graph settings (defaults: GTSAM's LM defaults).
+
+    Attributes
+    ----------
+    solver : "sparse" (our banded LM, default) or "gtsam" (GTSAM's LM with Python
+        CustomFactors: the reference, slower).
+    max_iterations, relative_tolerance, absolute_tolerance, lambda_initial : LM settings.
+    gap_variance : m², between-factor covariance per axis where odometry is missing.
+    huber : Huber threshold (σ units) on topology factors; 0 = plain Gaussian (paper).
+    topology_odometry_noise : new factor only — add the odometry noise to σ_s
+        (docs/factor_graph.md); False = radar noise only (paper, eqs. 14–16).
+    """
+
+    solver: str = param("sparse", choices=("sparse", "gtsam"))
+    max_iterations: int = param(100, ge=1)
+    relative_tolerance: float = param(1e-5, gt=0)
+    absolute_tolerance: float = param(1e-5, gt=0)
+    lambda_initial: float = param(1e-5, gt=0)
+    gap_variance: float = param(900.0, gt=0)
+    huber: float = param(0.0, ge=0)
+    topology_odometry_noise: bool = False
+
+
+class _BatchGraph:
+    """Shared body of the two batch estimators (see the module docstring)."""
+
+    kind: ClassVar[str]
+    Params: ClassVar[type[Params]] = FactorGraphParams
+    needs_truth: ClassVar[bool] = False
+    default_preset: ClassVar[str] = "gulati-2v"
+    required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "odometry")
+
+    def __init__(self, setup: Setup, params: FactorGraphParams, rng: np.random.Generator) -> None:
+        self.setup, self.params = setup, params
+        least_squares.compile_kernels()  # compile (or load from cache) here, not in smooth()
+        self.data = GraphData(setup, self.kind, params.gap_variance, params.topology_odometry_noise)
+        self.filter = PositionFilter()
+        self.estimates = EstimateLayout(setup)
+        self.initial: list[FloatArray] = []   # filtered positions: the smoother's start
+
+    def step(self, frame: Frame) -> Estimate:
+        """Add the frame's factors; return the filtered estimate of GPS + odometry."""
+        f = self.data.add_frame(frame)
+        belief = self.filter.step(f)
+        self.initial.append(belief.mean)
+        vel, vel_cov = self.estimates.filtered_velocity(f.delta)
+        return self.estimates.build(f.ids, belief.mean, belief.cov, vel, vel_cov,
+                                    {"filtered": True, "topology": self.data.n_topology})
+
+    def solve(self) -> LMResult:
+        """Solve the whole graph (positions and marginal covariances of every variable)."""
+        x0 = np.concatenate(self.initial) if self.initial else np.zeros((0, 2))
+        p = self.params
+        if self.data.n_vars == 0:
+            return LMResult(x0, np.zeros((0, 2, 2)), 0, 0.0)
+        if p.solver == "gtsam":
+            return solve_gtsam(self.data, x0, p)
+        problem = GraphProblem.of(self.data, p.huber)
+        return least_squares.solve_lm(
+            problem.linearize, x0, max_iterations=p.max_iterations,
+            relative_tolerance=p.relative_tolerance, absolute_tolerance=p.absolute_tolerance,
+            lambda_initial=p.lambda_initial)
+
+    def smooth(self) -> list[Estimate]:
+        """Smoothed estimate of every step so far (one LM solve of the whole graph)."""
+        result = self.solve()
+        x, cov = result.x, result.cov
+        assert cov is not None
+        info = {"smoothed": True, "iterations": result.iterations, "cost": result.cost,
+                "topology": self.data.n_topology}
+        out = []
+        dt = self.setup.dt
+        for f in self.data.frames:
+            vel, vel_cov = self.estimates.filtered_velocity(f.delta)
+            cont = f.previous >= 0  # finite difference of smoothed positions
+            vel[cont] = (x[f.vars[cont]] - x[f.previous[cont]]) / dt
+            vel_cov[cont] = (cov[f.vars[cont]] + cov[f.previous[cont]]) / dt**2
+            out.append(self.estimates.build(f.ids, x[f.vars], cov[f.vars], vel, vel_cov, info))
+        return out
+
+
+@dataclass(frozen=True)
+class FgTopologyOldParams(FactorGraphParams):
+    """`fg-topology-old` settings (see `FactorGraphParams`)."""
+
+
+@dataclass(frozen=True)
+class FgTopologyNewParams(FactorGraphParams):
+    """`fg-topology-new` settings (see `FactorGraphParams`)."""
+
+
+@register_estimator
+class FgTopologyOld(_BatchGraph):
+    """Batch LM on GPS, odometry and the old topology factor (eq. 8, Gulati 2016)."""
+
+    name: ClassVar[str] = "fg-topology-old"
+    Params: ClassVar[type[Params]] = FgTopologyOldParams
+    summary: ClassVar[str] = "factor graph, GPS + odometry + old topology factor (eq. 8), batch LM"
+    kind: ClassVar[str] = OLD
+
+
+@register_estimator
+class FgTopologyNew(_BatchGraph):
+    """Batch LM on GPS, odometry and the new topology factor (eqs. 9–16)."""
+
+    name: ClassVar[str] = "fg-topology-new"
+    Params: ClassVar[type[Params]] = FgTopologyNewParams
+    summary: ClassVar[str] = "factor graph, GPS + odometry + new topology factor (eqs. 9–16), batch LM"
+    kind: ClassVar[str] = NEW

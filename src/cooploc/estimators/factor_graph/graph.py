@@ -1,0 +1,309 @@
+r"""The factor graph of Gulati et al. 2017 as arrays, and its linearisation for `least_squares`.
+
+Paper: Gulati et al., "Graph Based Vehicle Infrastructure Cooperative Localization"
+(IV 2017), §III: eqs. 1–3 (the graph and its MAP estimate), 4–7 (odometry and GPS
+factors), 8–16 (topology factors, `factors.py`; derivation: docs/factor_graph.md),
+17–18 (the whitened least squares and its Jacobians).
+
+Model
+-----
+One variable per vehicle and step: its 2-D position p_t^i (no velocity and no motion
+model, as in the paper). Factors, each a Gaussian residual:
+
+- prior (unary): the first variable of every vehicle's chain gets its prior position
+  (the vehicle prior of the setup, or a broad one centred on its first GPS fix:
+  `base.birth_beliefs`);
+- GPS (unary, eqs. 6–7): p_t^i − z_t^g, covariance of the fix;
+- odometry (between, eqs. 4–5): (p_t^i − p_{t−1}^i) − δ_t^i, covariance of the row;
+  where a vehicle present at t − 1 and t has no odometry row, a *gap* factor with zero
+  displacement and covariance `gap_variance` · I keeps its chain connected;
+- topology (one scalar factor per radar and step, `factors.py`): left out at every step
+  where the radar does not report exactly as many rows as there are vehicles present
+  (the paper's "plug and play" remark, §IV-B; missed detections and clutter are its
+  future work); the new factor is also left out where a vehicle has no single odometry
+  row (first step, a vehicle that just entered).
+
+The problem, the values and the optimizer are kept apart as in GTSAM: `GraphData` is
+the growing graph (one `FrameFactors` per frame); `GraphProblem` is its residuals in
+arrays, whitened (eq. 17), with the `linearize` callable `cooploc.least_squares.solve_lm`
+takes; the values are a plain (n_vars, 2) array of positions.
+
+Variables are numbered step by step, so JᵀJ is banded (bandwidth < 2N per variable
+block). `add_frame` is O(N) per step; `linearize` evaluates all factors of a kind in one
+vectorised NumPy expression, O(T N) for T steps. The robust option (`huber` > 0,
+threshold in σ units) applies the Huber loss to the topology factors only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from cooploc.estimators.base import birth_beliefs
+from cooploc.estimators.factor_graph.factors import (
+    NEW,
+    OLD,
+    bilinear_topology,
+    odometry_topology_variance,
+    radar_topology,
+    squared_topology,
+    topology_jacobians,
+)
+from cooploc.least_squares import huber_cost_residual, huber_sqrt_weights, whitener
+from cooploc.types import Batch, FloatArray, Frame, IntArray, Setup
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+
+__all__ = ["FrameFactors", "GraphData", "GraphProblem"]
+
+_I2 = np.eye(2)
+
+
+@dataclass(frozen=True)
+class FrameFactors:
+    """The variables and factors one frame adds to the graph (rows are factors).
+
+    vars, ids, previous (n,): new variable per present vehicle (by id), its id, and the
+    variable of the same vehicle at the previous step (−1: a new chain).
+    delta (n, 2): the vehicle's odometry row, NaN unless it has exactly one.
+    unary_*: priors and GPS (M,), (M, 2), (M, 2, 2); between_*: odometry and gaps.
+    topology_*: K factors of this frame: current (K, n), previous (K, n), delta
+    (K, n, 2), s (K,), sigma (K,).
+    """
+
+    vars: IntArray
+    ids: IntArray
+    previous: IntArray
+    delta: FloatArray
+    unary_var: IntArray
+    unary_z: FloatArray
+    unary_cov: FloatArray
+    between_a: IntArray
+    between_b: IntArray
+    between_z: FloatArray
+    between_cov: FloatArray
+    topology_current: IntArray
+    topology_previous: IntArray
+    topology_delta: FloatArray
+    topology_s: FloatArray
+    topology_sigma: FloatArray
+
+
+def _rows_of(ids: IntArray, batch: Batch | None) -> tuple[IntArray, IntArray]:
+    """(rows, vehicle position in `ids`) of the rows of `batch` whose subject is in sorted `ids`."""
+    if batch is None or not len(batch) or ids.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    at = np.minimum(np.searchsorted(ids, batch.subject), ids.size - 1)
+    rows = np.flatnonzero(ids[at] == batch.subject)
+    return rows, at[rows]
+
+
+class GraphData:
+    """A growing factor graph stored as one `FrameFactors` per frame.
+
+    Variables are numbered in the order they are created (step by step, vehicles by id
+    within a step). `add_frame` builds one frame's factors with array operations.
+
+    Parameters
+    ----------
+    setup : the recording's setup (vehicle layout, priors).
+    kind : `OLD` or `NEW` topology factor.
+    gap_variance : m², between-factor covariance per axis where odometry is missing.
+    odometry_noise : new factor only — add `odometry_topology_variance` to σ_s².
+    """
+
+    def __init__(self, setup: Setup, kind: str, gap_variance: float,
+                 odometry_noise: bool = False) -> None:
+        self.setup, self.kind, self.gap_variance = setup, kind, gap_variance
+        self.odometry_noise = odometry_noise and kind == NEW
+        self.frames: list[FrameFactors] = []
+        self.n_vars = 0
+        self.n_topology = 0
+        self._ids = np.zeros(0, np.int64)
+        self._vars = np.zeros(0, np.int64)
+        self._pos = np.array(setup.vehicle_layout.position)
+
+    def add_frame(self, frame: Frame) -> FrameFactors:
+        """Append the variables and factors of `frame` (see the module docstring)."""
+        ids = np.sort(frame.vehicles)
+        n = ids.size
+        new_vars = self.n_vars + np.arange(n)
+        self.n_vars += n
+        if np.array_equal(ids, self._ids):  # the usual step: the same vehicles as before
+            cont, prev = np.ones(n, bool), self._vars
+        else:
+            cont = np.isin(ids, self._ids)
+            prev = np.full(n, -1, np.int64)
+            prev[cont] = self._vars[np.searchsorted(self._ids, ids[cont])]
+        # unary: prior on the first variable of each chain, then GPS (eq. 7)
+        u_var, u_z, u_cov = [], [], []
+        if (~cont).any():
+            born = birth_beliefs(self.setup, ids[~cont], frame)
+            u_var.append(new_vars[~cont])
+            u_z.append(born.mean[:, self._pos])
+            u_cov.append(born.cov[:, self._pos[:, None], self._pos[None, :]])
+        gnss = frame.batches.get("gnss")
+        rows, at = _rows_of(ids, gnss)
+        if rows.size:
+            u_var.append(new_vars[at])
+            u_z.append(gnss.z[rows])
+            u_cov.append(gnss.cov[rows])
+        # between: odometry of continuing vehicles (eq. 5), a gap factor where there is none
+        odometry = frame.batches.get("odometry")
+        rows, at = _rows_of(ids, odometry)
+        keep = cont[at]
+        rows, at = rows[keep], at[keep]
+        rows_odometry = rows
+        count = np.bincount(at, minlength=n)
+        delta = np.full((n, 2), np.nan)
+        once = count[at] == 1
+        delta[at[once]] = odometry.z[rows[once]] if rows.size else 0.0
+        gap = np.flatnonzero(cont & (count == 0))
+        b_a = np.concatenate([prev[at], prev[gap]])
+        b_b = np.concatenate([new_vars[at], new_vars[gap]])
+        b_z = np.concatenate([odometry.z[rows] if rows.size else np.zeros((0, 2)),
+                              np.zeros((gap.size, 2))])
+        b_cov = np.concatenate([odometry.cov[rows] if rows.size else np.zeros((0, 2, 2)),
+                                np.broadcast_to(self.gap_variance * _I2, (gap.size, 2, 2))])
+        # topology (eqs. 8 / 11–16): left out unless a radar reports exactly n rows
+        t_s, t_sigma = [], []
+        radar = frame.batches.get("radar")
+        usable = n >= 2 and (self.kind == OLD or bool(cont.all() and (count == 1).all()))
+        if usable and radar is not None and len(radar):
+            for sensor in np.unique(radar.sensor):
+                rows = radar.sensor == sensor
+                if rows.sum() != n:
+                    continue
+                s, var = radar_topology(radar.z[rows], radar.cov[rows])
+                if self.odometry_noise:
+                    var += odometry_topology_variance(radar.z[rows], odometry.cov[rows_odometry])
+                if var > 0:
+                    t_s.append(s)
+                    t_sigma.append(np.sqrt(var))
+        K = len(t_s)
+        self.n_topology += K
+        factors = FrameFactors(
+            new_vars, ids, prev, delta,
+            np.concatenate(u_var) if u_var else np.zeros(0, np.int64),
+            np.concatenate(u_z) if u_z else np.zeros((0, 2)),
+            np.concatenate(u_cov) if u_cov else np.zeros((0, 2, 2)),
+            b_a, b_b, b_z, b_cov,
+            np.repeat(new_vars[None], K, 0),
+            np.repeat((prev if self.kind == NEW else new_vars)[None], K, 0),
+            np.repeat(np.nan_to_num(delta)[None], K, 0),
+            np.array(t_s, float), np.array(t_sigma, float),
+        )
+        self.frames.append(factors)
+        self._ids, self._vars = ids, new_vars
+        return factors
+
+
+@dataclass(frozen=True)
+class GraphProblem:
+    """The graph of `GraphData` as whitened arrays (topology grouped by N), ready to linearise.
+
+    `GraphProblem.of(data, huber).linearize` is the problem `least_squares.solve_lm` takes.
+    """
+
+    n_vars: int
+    u_var: IntArray
+    u_z: FloatArray
+    u_W: FloatArray
+    b_a: IntArray
+    b_b: IntArray
+    b_z: FloatArray
+    b_W: FloatArray
+    topology: tuple[tuple[IntArray, IntArray, FloatArray, FloatArray, FloatArray], ...]
+    kind: str
+    huber: float
+
+    @classmethod
+    def of(cls, data: GraphData, huber: float = 0.0) -> GraphProblem:
+        """The problem of every frame of `data`; `huber` > 0: Huber loss on topology factors (σ)."""
+        frames = data.frames
+
+        def cat(name: str) -> np.ndarray:
+            return np.concatenate([getattr(f, name) for f in frames])
+
+        groups: dict[int, list[FrameFactors]] = {}
+        for f in frames:
+            if f.topology_s.size:
+                groups.setdefault(f.vars.size, []).append(f)
+        topology = tuple(
+            tuple(np.concatenate([getattr(f, "topology_" + part) for f in group])
+                  for part in ("current", "previous", "delta", "s", "sigma"))
+            for group in groups.values())
+        return cls(data.n_vars, cat("unary_var"), cat("unary_z"), whitener(cat("unary_cov")),
+                   cat("between_a"), cat("between_b"), cat("between_z"),
+                   whitener(cat("between_cov")), topology, data.kind, huber)  # type: ignore[arg-type]
+
+    def linearize(self, x: FloatArray, jacobian: bool = True) -> tuple[FloatArray, sp.csr_matrix | None]:
+        """Whitened residual r and sparse Jacobian J (rows × 2 n_vars) at positions x (n_vars, 2).
+
+        `jacobian=False`: the cost-equivalent residual (Huber on topology rows) and None,
+        the contract of `cooploc.least_squares.Linearize`.
+        """
+        import scipy.sparse as sp
+
+        parts_r, rows, cols, vals = [], [], [], []
+        offset = 0
+        # unary (priors, GPS): r = W (x_v − z)                              eq. (7)
+        if self.u_var.size:
+            r = np.einsum("mij,mj->mi", self.u_W, x[self.u_var] - self.u_z)
+            parts_r.append(r.ravel())
+            if jacobian:
+                m = self.u_var.size
+                rr = offset + 2 * np.arange(m)[:, None, None] + np.arange(2)[None, :, None]
+                cc = 2 * self.u_var[:, None, None] + np.arange(2)[None, None, :]
+                rows.append(np.broadcast_to(rr, (m, 2, 2)).ravel())
+                cols.append(np.broadcast_to(cc, (m, 2, 2)).ravel())
+                vals.append(self.u_W.ravel())
+            offset += 2 * self.u_var.size
+        # between: r = W (x_b − x_a − z)                                    eq. (5)
+        if self.b_a.size:
+            r = np.einsum("mij,mj->mi", self.b_W, x[self.b_b] - x[self.b_a] - self.b_z)
+            parts_r.append(r.ravel())
+            if jacobian:
+                m = self.b_a.size
+                rr = np.broadcast_to(offset + 2 * np.arange(m)[:, None, None]
+                                     + np.arange(2)[None, :, None], (m, 2, 2)).ravel()
+                for var, sign in ((self.b_a, -1.0), (self.b_b, 1.0)):
+                    cc = 2 * var[:, None, None] + np.arange(2)[None, None, :]
+                    rows.append(rr)
+                    cols.append(np.broadcast_to(cc, (m, 2, 2)).ravel())
+                    vals.append(sign * self.b_W.ravel())
+            offset += 2 * self.b_a.size
+        # topology: r = (S(p_t) − s)/σ or (B(p_t, p_{t−1} + δ) − s)/σ, scaled by Huber weights
+        for current, previous, delta, s, sigma in self.topology:
+            p = x[current]
+            if self.kind == OLD:
+                q = None
+                r = (squared_topology(p) - s) / sigma                      # eq. (8)
+            else:
+                q = x[previous] + delta
+                r = (bilinear_topology(p, q) - s) / sigma                  # eqs. (11)–(13)
+            w = huber_sqrt_weights(r, self.huber)
+            if jacobian:
+                parts_r.append(w * r)  # IRLS: √w r and √w J give the Huber gradient and Hessian
+            else:
+                parts_r.append(huber_cost_residual(r, self.huber))
+            if jacobian:
+                K, n = current.shape
+                J_cur, J_prev = topology_jacobians(self.kind, p, q)
+                scale = (w / sigma)[:, None, None]
+                rr = np.broadcast_to(offset + np.arange(K)[:, None, None], (K, n, 2)).ravel()
+                blocks = [(current, J_cur)] + ([(previous, J_prev)] if J_prev is not None else [])
+                for var, J in blocks:
+                    rows.append(rr)
+                    cols.append((2 * var[:, :, None] + np.arange(2)).ravel())
+                    vals.append((scale * J).ravel())
+            offset += s.size
+        r = np.concatenate(parts_r) if parts_r else np.zeros(0)
+        if not jacobian:
+            return r, None
+        J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(offset, 2 * self.n_vars))
+        return r, J

@@ -1,0 +1,111 @@
+"""`fg-isam2`: the new-topology-factor graph updated incrementally with GTSAM's iSAM2.
+
+Paper: Gulati et al., "Graph Based Vehicle Infrastructure Cooperative Localization"
+(IV 2017), §III: GPS (eqs. 6–7), odometry (eqs. 4–5) and the new topology factor
+(eqs. 9–16; derivation: docs/factor_graph.md), the graph of `graph.py`. The paper
+solves it in batch (eq. 17); iSAM2 (Kaess et al. 2012) updates the same solution
+incrementally, one frame at a time.
+
+`step` adds the frame's variables and factors (`gtsam_backend.gtsam_factors`: native
+GPS and odometry factors, one scalar-arithmetic `CustomFactor` per topology factor)
+and returns the *filtered* estimate — iSAM2's current estimate and marginal covariance
+of the frame's variables; there is no `smooth()`. Initial guess of a new variable: the
+last estimate plus odometry, else its latest unary row (GPS or prior). Variables are
+relinearised at most every `relinearize_skip` = 10 updates (GTSAM's default), which
+bounds the GIL-bound Python cost of the CustomFactors. Time per step:
+`benchmarks/factor_graph.py` (`isam2`).
+
+`gtsam` is imported when the estimator is constructed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from cooploc.estimators.factor_graph.estimates import EstimateLayout
+from cooploc.estimators.factor_graph.factors import NEW
+from cooploc.estimators.factor_graph.graph import GraphData
+from cooploc.estimators.factor_graph.gtsam_backend import gtsam_factors
+from cooploc.params import Params, param
+from cooploc.registry import register_estimator
+from cooploc.types import Estimate, Frame, Setup
+
+__all__ = ["FgIsam2", "ISAM2Params"]
+
+
+@dataclass(frozen=True)
+class ISAM2Params(Params):
+    """iSAM2 settings (defaults: GTSAM's).
+
+    Attributes
+    ----------
+    relinearize_threshold : relinearise a variable whose update exceeds this (m).
+    relinearize_skip : check for relinearisation every this many updates.
+    gap_variance, huber, topology_odometry_noise : as for the batch estimators
+        (`FactorGraphParams`).
+    """
+
+    relinearize_threshold: float = param(0.1, gt=0)
+    relinearize_skip: int = param(10, ge=1)
+    gap_variance: float = param(900.0, gt=0)
+    huber: float = param(0.0, ge=0)
+    topology_odometry_noise: bool = False
+
+
+@register_estimator
+class FgIsam2:
+    """The new-factor graph, updated incrementally with GTSAM's iSAM2; filtered estimates."""
+
+    name: ClassVar[str] = "fg-isam2"
+    summary: ClassVar[str] = "factor graph with the new topology factor, incremental iSAM2 (filtered)"
+    Params: ClassVar[type[Params]] = ISAM2Params
+    needs_truth: ClassVar[bool] = False
+    default_preset: ClassVar[str] = "gulati-2v"
+    required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "odometry")
+
+    def __init__(self, setup: Setup, params: ISAM2Params, rng: np.random.Generator) -> None:
+        import gtsam
+
+        self.setup, self.params = setup, params
+        self.data = GraphData(setup, NEW, params.gap_variance, params.topology_odometry_noise)
+        self.estimates = EstimateLayout(setup)
+        isam_params = gtsam.ISAM2Params()
+        isam_params.setRelinearizeThreshold(params.relinearize_threshold)
+        isam_params.relinearizeSkip = params.relinearize_skip
+        self.isam = gtsam.ISAM2(isam_params)
+        self._gtsam = gtsam
+        self._last_vars = np.zeros(0, np.int64)
+        self._last = np.zeros((0, 2))
+
+    def step(self, frame: Frame) -> Estimate:
+        """Add the frame to iSAM2; its current estimate of the frame's vehicles."""
+        f = self.data.add_frame(frame)
+        vel, vel_cov = self.estimates.filtered_velocity(f.delta)
+        n = f.vars.size
+        if n == 0:
+            return self.estimates.build(f.ids, np.zeros((0, 2)), np.zeros((0, 2, 2)), vel, vel_cov,
+                                        {"filtered": True})
+        # initial guess: last estimate + odometry; else the last unary row (GPS or prior)
+        initial = np.zeros((n, 2))
+        cont = f.previous >= 0
+        if cont.any():
+            initial[cont] = self._last[np.searchsorted(self._last_vars, f.previous[cont])]
+        initial += np.nan_to_num(f.delta)
+        unary = f.unary_var - f.vars[0]
+        no_odometry = ~np.isfinite(f.delta).all(axis=1)
+        rows = np.flatnonzero(no_odometry[unary])
+        initial[unary[rows]] = f.unary_z[rows]
+        values = self._gtsam.Values()
+        for v, p in zip(f.vars.tolist(), initial, strict=True):
+            values.insert(v, p)
+        self.isam.update(gtsam_factors(self.data, [f], self.params.huber), values)
+        keys = f.vars.tolist()
+        pos = np.array([self.isam.calculateEstimatePoint2(v) for v in keys])
+        cov = np.array([self.isam.marginalCovariance(v) for v in keys])
+        cov = 0.5 * (cov + cov.transpose(0, 2, 1))
+        self._last_vars, self._last = f.vars, pos
+        return self.estimates.build(f.ids, pos, cov, vel, vel_cov,
+                                    {"filtered": True, "topology": self.data.n_topology})
