@@ -20,8 +20,8 @@ registered, and the known-association bound `oracle-kf`).
 Sizes and cost: the paper simulates one hour; we default to 30 minutes after a
 5-minute warm-up (six 5-minute intervals) and one run, because `oracle-kf` is a joint
 Kalman filter over every vehicle and feature in the area — O(D³ + m³) per step with
-D = 4 (vehicles + features) ≈ 600 and m ≈ 4 × (GNSS + V2F rows) ≈ 900 here — about
-0.5–1 s a step on one core, i.e. roughly an hour for both variants. `--runs N` adds
+D = 4 (vehicles + features) ≈ 600 and m ≈ 4 × (GNSS + V2F rows) ≈ 900 here, the slowest
+part of the experiment (`benchmarks/run.py` times it). `--runs N` adds
 runs (each with its own traffic, cached after the first time). `--quick` runs the
 3 × 3 generated grid for 30 s with 10-s intervals: it checks the pipeline, its numbers
 are not the paper's setting.
