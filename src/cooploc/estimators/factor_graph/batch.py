@@ -112,13 +112,11 @@ class _BatchGraph:
         p = self.params
         if self.data.n_vars == 0:
             return LMResult(x0, np.zeros((0, 2, 2)), 0, 0.0)
+        settings = {"max_iterations": p.max_iterations, "relative_tolerance": p.relative_tolerance,
+                    "absolute_tolerance": p.absolute_tolerance, "lambda_initial": p.lambda_initial}
         if p.solver == "gtsam":
-            return solve_gtsam(self.data, x0, p)
-        problem = GraphProblem.of(self.data, p.huber)
-        return least_squares.solve_lm(
-            problem.linearize, x0, max_iterations=p.max_iterations,
-            relative_tolerance=p.relative_tolerance, absolute_tolerance=p.absolute_tolerance,
-            lambda_initial=p.lambda_initial)
+            return solve_gtsam(self.data, x0, huber=p.huber, **settings)
+        return least_squares.solve_lm(GraphProblem.of(self.data, p.huber).linearize, x0, **settings)
 
     def smooth(self) -> list[Estimate]:
         """Smoothed estimate of every step so far (one LM solve of the whole graph)."""

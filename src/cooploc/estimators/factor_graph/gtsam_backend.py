@@ -18,7 +18,7 @@ topology noise in `noiseModel.Robust` + `mEstimator.Huber`.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -26,9 +26,6 @@ from cooploc.estimators.factor_graph.factors import NEW, OLD
 from cooploc.estimators.factor_graph.graph import FrameFactors, GraphData
 from cooploc.least_squares import LMResult
 from cooploc.types import FloatArray
-
-if TYPE_CHECKING:
-    from cooploc.estimators.factor_graph.batch import FactorGraphParams
 
 __all__ = ["gtsam_factors", "gtsam_graph", "gtsam_values", "solve_gtsam", "topology_custom_factor"]
 
@@ -115,17 +112,19 @@ def gtsam_values(x: FloatArray) -> Any:
     return values
 
 
-def solve_gtsam(data: GraphData, x0: FloatArray, params: FactorGraphParams,
-                covariances: bool = True) -> LMResult:
-    """GTSAM's Levenberg–Marquardt on the same graph from x0, with `params`' LM settings."""
+def solve_gtsam(data: GraphData, x0: FloatArray, *, huber: float = 0.0, max_iterations: int = 100,
+                relative_tolerance: float = 1e-5, absolute_tolerance: float = 1e-5,
+                lambda_initial: float = 1e-5, covariances: bool = True) -> LMResult:
+    """GTSAM's Levenberg–Marquardt on the same graph from x0, with the LM settings of
+    `cooploc.least_squares.solve_lm` (and its Huber threshold on topology factors)."""
     import gtsam
 
-    graph = gtsam_graph(data, params.huber)
+    graph = gtsam_graph(data, huber)
     lm = gtsam.LevenbergMarquardtParams()
-    lm.setMaxIterations(params.max_iterations)
-    lm.setRelativeErrorTol(params.relative_tolerance)
-    lm.setAbsoluteErrorTol(params.absolute_tolerance)
-    lm.setlambdaInitial(params.lambda_initial)
+    lm.setMaxIterations(max_iterations)
+    lm.setRelativeErrorTol(relative_tolerance)
+    lm.setAbsoluteErrorTol(absolute_tolerance)
+    lm.setlambdaInitial(lambda_initial)
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, gtsam_values(x0), lm)
     result = optimizer.optimize()
     x = np.array([result.atPoint2(v) for v in range(data.n_vars)])
