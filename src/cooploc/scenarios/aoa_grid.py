@@ -120,13 +120,14 @@ class AoaGridParams(Params):
     n_steps: int = param(1, ge=1)
     dt: float = param(0.1, gt=0)
     speed_min: float = param(1.0, ge=0)
-    speed_max: float = param(5.0, finite=True)
+    speed_max: float = 5.0
     motion_position_density: float = param(2.5, ge=0)
     motion_heading_density: float = param(0.01, ge=0)
 
     def validate(self) -> None:
         self.require(self.block_size <= self.grid_size, "block_size", f"be <= grid_size = {self.grid_size}")
-        self.require(self.speed_max >= self.speed_min, "speed_max", f"be >= speed_min = {self.speed_min}")
+        self.require(bool(np.isfinite(self.speed_max)) and self.speed_max >= self.speed_min, "speed_max",
+                     f"be >= speed_min = {self.speed_min}")
 
 
 def anchor_ids(params: AoaGridParams) -> np.ndarray:

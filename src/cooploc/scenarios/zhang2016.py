@@ -116,7 +116,7 @@ class ZhangParams(Params):
     dt: float = param(1.0, gt=0)
     process_noise_std: float = param(0.5, gt=0)
     truth_noise_std: float = param(0.0, ge=0)
-    turn_rates: tuple[float, ...] = param((), finite=True)
+    turn_rates: tuple[float, ...] = param((), finite=True, must="be finite")
     gnss_variance: float = param(0.5, gt=0)
     radar_variance: float = param(0.1, gt=0)
     prior_position_variance: float = param(2.5, gt=0)
