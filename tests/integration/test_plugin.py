@@ -22,6 +22,7 @@ import sys
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import cooploc
@@ -149,3 +150,24 @@ def test_a_broken_plugin_is_left_out_with_a_warning(folders: dict[str, Path]) ->
     assert "'broken-kf' (cooploc_no_such_module:BrokenKF) of group cooploc.estimators was left out: " \
            "ModuleNotFoundError" in estimator
     assert "'broken-road'" in scenario and "group cooploc.scenarios" in scenario
+
+
+def test_without_outliers_the_huber_filter_is_the_kalman_filter(folders: dict[str, Path]) -> None:
+    """An independent check of the plug-in's method: with a threshold no fix reaches,
+    every weight is 1 and `huber-kf` must give `gnss-kf`'s numbers (the module's claim)."""
+    code = (
+        "import json, numpy as np, cooploc\n"
+        "preset = cooploc.get_preset('motorway')\n"
+        "rec = preset.generate(np.random.default_rng(4), preset.params.with_overrides({'n_steps': 60}))\n"
+        "out = {}\n"
+        "for name, params in (('gnss-kf', None), ('huber-kf', {'threshold': 1e12})):\n"
+        "    cls = cooploc.get_estimator(name)\n"
+        "    p = None if params is None else cls.Params(**params)\n"
+        "    est = cooploc.make_estimator(name, rec.setup, p, np.random.default_rng(0))\n"
+        "    out[name] = [e.vehicles.mean.tolist() for e in cooploc.estimate(est, rec)]\n"
+        "print(json.dumps(out))\n")
+    result = python("-c", code, paths=[folders["site"]], cwd=folders["work"])
+    assert result.returncode == 0, result.stderr
+    means = json.loads(result.stdout.strip().splitlines()[-1])
+    # same Joseph-form updates with R / 1: equal up to round-off
+    np.testing.assert_allclose(means["huber-kf"], means["gnss-kf"], rtol=1e-12, atol=1e-9)
