@@ -20,7 +20,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from cooploc._version import __version__
-from cooploc.errors import ConfigError, CooplocError, InvalidInputError
+from cooploc.errors import ConfigError, CooplocError, EstimatorError, InvalidInputError
 
 #: public name → the module that holds it; loaded on first access (Scientific Python
 #: SPEC 1), so that `import cooploc` and the command line start without NumPy & co.
@@ -57,6 +57,7 @@ __all__ = [
     "ConfigError",
     "CooplocError",
     "Estimate",
+    "EstimatorError",
     "ExperimentConfig",
     "ExperimentResult",
     "Frame",
