@@ -195,7 +195,10 @@ def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
     n_rounds : forwarding rounds (blocks travel at most this many hops).
     priority : (n, G) integers ranking the copies; higher wins where copies meet.
 
-    Returns (have, payload, priority) after flooding.
+    Returns
+    -------
+    have, payload, priority
+        after flooding.
     """
     _check_iterations(n_rounds)
     have = np.array(have, dtype=bool, copy=True)

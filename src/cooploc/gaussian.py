@@ -224,7 +224,10 @@ def statistical_linear_regression(
         measurement; default h(mean).
     central_weight : w₀ of the unscented points.
 
-    Returns A, c, Ω with z ≈ A x + c + e, e ~ N(0, Ω) (eqs. 17–22).
+    Returns
+    -------
+    A, c, Ω
+        with z ≈ A x + c + e, e ~ N(0, Ω) (eqs. 17–22).
     """
     chi, w = sigma_points(mean, cov, method, central_weight)      # (n, S, d), (S,)
     zeta = np.asarray(h(chi), dtype=float)                         # (n, S, dz)

@@ -147,7 +147,7 @@ def rmse_over_time(result: ExperimentResult, path: Path) -> Path:
 
 def per_run_rmse_cdf(per_run: Mapping[str, Mapping[str, Sequence[float | None]]], path: Path,
                      title: str) -> Path:
-    """CDF of per-run RMSE: per_run[estimator][vehicle id] = RMSE of each run."""
+    """CDF of per-run RMSE: `per_run[estimator][vehicle id]` = RMSE of each run."""
     ids = sorted({vid for by_id in per_run.values() for vid in by_id}, key=int)[:MAX_PANELS]
     fig, axes = figure_panels(max(len(ids), 1), title)
     for ax, vid in zip(axes, ids, strict=False):
@@ -164,7 +164,7 @@ def per_run_rmse_cdf(per_run: Mapping[str, Mapping[str, Sequence[float | None]]]
 
 def sweep_plot(x: Sequence[float], curves: Mapping[str, Mapping[str, Sequence[float]]],
                path: Path, title: str, xlabel: str, log_x: bool = False) -> Path:
-    """curves[estimator][vehicle id] = RMSE at each x."""
+    """`curves[estimator][vehicle id]` = RMSE at each x."""
     ids = sorted({vid for c in curves.values() for vid in c}, key=int)[:MAX_PANELS]
     fig, axes = figure_panels(max(len(ids), 1), title)
     for ax, vid in zip(axes, ids, strict=False):
@@ -183,7 +183,7 @@ def sweep_plot(x: Sequence[float], curves: Mapping[str, Mapping[str, Sequence[fl
 def line_panels(panels: Mapping[str, Mapping[str, tuple[Sequence[float], Sequence[float]]]], path: Path,
                 title: str, xlabel: str, ylabel: str, markers: bool = True,
                 size: tuple[float, float] = (4.2, 3.3)) -> Path:
-    """panels[panel title][curve label] = (x, y); known-association bounds dashed; `size`
+    """`panels[panel title][curve label]` = (x, y); known-association bounds dashed; `size`
     of a panel in inches."""
     fig, axes = figure_panels(max(len(panels), 1), title, size=size)
     for ax, (name, curves) in zip(axes, panels.items(), strict=False):

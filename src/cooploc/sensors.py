@@ -460,8 +460,11 @@ class AngleOfArrival:
         ids : (n,) vehicle ids; states : (n, dx) their true states.
         links : (E, 2) undirected links as pairs of ids.
 
-        Returns a Batch with z (M, 1) wrapped to [−π, π), `sensor` = receiver,
-        `subject` = transmitter; rows ordered by link, receiver first-end first.
+        Returns
+        -------
+        Batch
+            z (M, 1) wrapped to [−π, π), `sensor` = receiver, `subject` = transmitter;
+            rows ordered by link, receiver first-end first.
         """
         ids = np.asarray(ids, dtype=np.int64)
         states = np.asarray(states, dtype=float)

@@ -112,11 +112,6 @@ def with_traffic(recording: Recording, absent: Mapping[int, Iterable[int]],
                  keep_prior: bool = False) -> Recording:
     """The same run with vehicles taken away at some steps.
 
-    Parameters
-    ----------
-    recording : a run in which every vehicle is present at every step.
-    absent : vehicle id → steps at which it is not on the road.
-
     Rows measured by, about, or originating from an absent vehicle are removed from
     every batch (and from `Truth.origin`), links touching it are dropped, its true
     state is zeroed and `Truth.vehicle_present` is cleared. Unless `keep_prior`, the
@@ -124,6 +119,11 @@ def with_traffic(recording: Recording, absent: Mapping[int, Iterable[int]],
     later has no prior and is born from its first GNSS fix
     (`cooploc.estimators.base.birth_beliefs`). With `keep_prior` every vehicle keeps its
     step-0 prior (estimators predict it to the step where the vehicle enters).
+
+    Parameters
+    ----------
+    recording : a run in which every vehicle is present at every step.
+    absent : vehicle id → steps at which it is not on the road.
     """
     truth = recording.truth
     present = np.array(truth.vehicle_present)

@@ -671,6 +671,8 @@ class Estimate:
     features : beliefs of the features, or None if the method does not estimate them.
     info : diagnostics (association marginals, iterations used, bytes exchanged, ...).
 
+    Notes
+    -----
     The `info` keys that the runner and the metrics read — this is their one
     definition; every other key is a diagnostic of its estimator, documented there:
 

@@ -4,56 +4,16 @@ Paper: B.-N. Vo and W.-K. Ma, "The Gaussian mixture probability hypothesis densi
 filter", IEEE Trans. Signal Processing 54(11), 2006 (Tables I–III); used by Zhang et al.
 2016 §4.1 on the internal (GPS) measurements only — the radar's frame is unknown.
 
-Model
------
-The PHD (intensity) of the vehicles is a Gaussian mixture Σ_j w_j N(x; m_j, P_j).
+The PHD of the vehicles is a Gaussian mixture Σ_j w_j N(x; m_j, P_j): prediction with
+survival p_S and a measurement-driven birth intensity (Table I, eqs. 20–21), the update
+with detection probability p_D and clutter intensity κ = λ / V (eqs. 22–27) over every
+component × row pair at once in the log domain, pruning and merging (Table II), and
+extraction of exactly one state per connected vehicle (heaviest first; Table III's own
+count is kept in `info`). Estimates are set-valued (``info["set_valued"]``).
 
-- Prediction (Table I, eqs. 20–21): survivors w ← p_S w, m ← F m, P ← F P Fᵀ + Q with
-  the vehicles' motion model (`Setup.vehicle_motion`), plus the birth intensity.
-- Update (eqs. 22–27): with detection probability p_D and clutter intensity
-  κ(z) = λ / V (λ = `Setup.clutter_rate`, V the area of `Setup.clutter_region`),
-
-  .. math:: D_k(x) = (1 - p_D) D_{k|k-1}(x) + \sum_z \sum_j w_j(z) N(x; m_{j|k}(z), P_{j|k}),
-  .. math:: w_j(z) = \frac{p_D w_j q_j(z)}{κ(z) + p_D \sum_l w_l q_l(z)},\quad
-            q_j(z) = N(z; H m_j, H P_j Hᵀ + R_z),
-
-  every component × row pair at once (arrays (J, M, …)); weights in log domain with
-  `logaddexp`/`logsumexp`; Joseph-form covariances.
-- Pruning and merging (Table II): drop w < `prune_threshold`; repeatedly take the
-  heaviest component j, merge every i with (m_i − m_j)ᵀ P_i⁻¹ (m_i − m_j) ≤
-  `merge_threshold` by moment matching; keep at most `max_components`. Each pass is
-  vectorised over the components, so the Python loop runs once per *output* component.
-- State extraction: Vo & Ma's Table III takes components with w > 0.5 (round(w) copies).
-  The cooploc contract asks for one belief per present vehicle, and the fusion centre
-  knows how many vehicles are connected (`frame.vehicles`), so we extract exactly that
-  many: the heaviest component first, each pick lowering its weight by one (so a
-  component of weight 2 — two merged vehicles — is picked twice). Vo & Ma's own
-  count, Σ w and the number of components are in `info` ("n_extracted_vo_ma",
-  "cardinality", "n_components").
-
-Choices the paper leaves open
------------------------------
-- p_D = min(`Setup.detection_probability`, `max_detection_probability` = 0.99): with
-  p_D = 1 a component that misses its row for one step is gone for good.
-- p_S = `survival_probability` = 0.99 (Vo & Ma's value).
-- Births: the initial intensity is `Setup.vehicle_prior` (weight 1 each, predicted to
-  the first step). Vehicles that enter are covered by a measurement-driven birth
-  intensity: each GPS row of the previous step seeds a component of weight
-  `birth_weight` at [z, 0] with covariance `default_birth_cov` (position block = the
-  row's covariance); `birth_weight = 0` turns births off (as in Zhang's scenarios,
-  where no vehicle enters).
-- κ = 0 when the setup has no clutter (the update then normalises by Σ p_D w q alone).
-
-Estimates are set-valued: the beliefs carry the ids of `frame.vehicles` in extraction
-order, not identities, so ``info["set_valued"]`` is True and metrics score them after
-an optimal assignment (`metrics.evaluate`).
-
-Stone Soup's GM-PHD with the same models (`tests/stonesoup_reference.py`, a test-only
-dependency) is the reference of the cross-check in tests/test_gm_phd.py and of the
-timing in benchmarks/zhang2016.py.
-
-Complexity per step: O(J M dx³) for J components and M rows (update), O(J_out J dx³)
-for merging.
+The update written out, the extraction rule, and the choices the paper leaves open
+(p_D cap, p_S, births, κ = 0 without clutter): docs/gm_phd.md. Stone Soup's GM-PHD is
+the reference of tests/test_gm_phd.py.
 """
 
 from __future__ import annotations

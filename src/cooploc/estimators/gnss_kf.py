@@ -20,6 +20,8 @@ also present at k − 1. Scenarios without odometry are filtered exactly as befo
 
 All vehicles are filtered together as one batch (`gaussian.kf_predict/kf_update`), so
 a step costs O(n dx³) in NumPy calls whose number does not grow with n.
+
+The model and the stochastic cloning written out: docs/gnss_kf.md.
 """
 
 from __future__ import annotations

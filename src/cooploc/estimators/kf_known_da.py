@@ -12,6 +12,8 @@ GPS filter can do once the association problem is removed — the reference the 
 filter is compared with in Fig. 3.
 
 Complexity: that of `gnss-kf`, O(n dx³) per step in a fixed number of NumPy calls.
+
+The model written out: docs/kf_known_da.md.
 """
 
 from __future__ import annotations

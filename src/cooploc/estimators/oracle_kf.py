@@ -17,6 +17,8 @@ entering vehicles and newly seen features are appended with their prior (or a br
 belief around their first fix), features unseen for `feature_timeout` steps are
 dropped; then one joint prediction and one joint Joseph-form update with all rows
 stacked. Cost O(D³ + D² m) for D = 4(S + K) states and m measurement components.
+
+The model written out: docs/oracle_kf.md.
 """
 
 from __future__ import annotations

@@ -4,71 +4,17 @@ Paper: M. Fröhle, C. Lindberg, H. Wymeersch, "Cooperative Localization of Vehic
 without Inter-vehicle Measurements", IEEE WCNC 2018, §III–V. Every vehicle s sends its
 GNSS fix and its anonymous, shuffled V2F detections z_m = H f_k − H x_s + w (eq. (1))
 to the RSU, which runs loopy BP on the factor graph of eq. (9) (Fig. 2), one time step
-after the other (filtering). Per step, on particle beliefs (§IV-B, N_p per state):
+after the other (filtering), on particle beliefs (§IV-B, N_p per state). Per step:
+prediction (10)–(11); measurement evaluation (14) from the kernel over all particle
+pairs (`particles.pair_kernel`, computed once, reused); data association (15)–(20) by
+`association.bp_association`; I iterations of measurement correction (21)–(24);
+beliefs (25)–(26) as log-weights, resampled when N_eff < `resample_threshold` · N_p.
+BP beliefs drop the vehicle–feature correlation that `oracle-kf` keeps, so rsu-bp stays
+above the known-association bound.
 
-1. Prediction (10)–(11): propagate every vehicle and feature particle through the motion
-   model; φ_s, α_k are the predicted sets. χ_s is the GNSS likelihood at the vehicle
-   particles (eq. (8)).
-2. Measurement evaluation (14): β_{k,s}(m) = Σ_j Σ_l α_k,j (φχ)_s,l N(z_m; H f_j − H x_l, W),
-   from the kernel G over all particle pairs (`particles.pair_kernel`), computed once
-   per step and reused for β, γ and μ.
-3.–4. Data association (15)–(20): per vehicle, P iterations of loopy BP over the
-   association variables (`association.bp_association`), with ψ_k(m) = P_D β_{k,s}(m),
-   ψ_k(0) = 1 − P_D and clutter weight κ = λ / |region| (the paper's one-to-one case is
-   P_D = 1, λ = 0). Output: ν_{m→k} = η_{k,s}(m) / η_{k,s}(0).
-5. Measurement correction, I iterations (21)–(24):
-   γ_{k,s}(f_j) = (1 − P_D) + P_D Σ_m ν_{m→k} Σ_l ρ̂_{k,s,l} G[s,k,m][j, l]      (21)
-   α̃_{k,s} = α_k Π_{s'≠s} γ_{k,s'}                                             (22)
-   μ_{k,s}(x_l) = (1 − P_D) + P_D Σ_m ν_{m→k} Σ_j α̂̃_{k,s,j} G[s,k,m][j, l]     (23)
-   ρ_{k,s} = φ_s χ_s Π_{k'≠k} μ_{k',s}                                         (24)
-   with ρ^{(0)} = φχ (eq. (13)) and hats for messages normalised over the particles.
-6. Beliefs (25)–(26): b_k ∝ α_k Π_s γ_{k,s} and b_s ∝ φ_s χ_s Π_k μ_{k,s} as log-weights
-   on the predicted particles; means and covariances for the `Estimate`; systematic
-   resampling when N_eff < `resample_threshold` · N_p (1 = every step, as the paper).
-
-Complexity O(S K M N_p² (1 + I)) kernel work, done as one numba pass that fills G
-(S K M N_p² doubles; with more than `kernel_memory_mb` the kernel is recomputed per
-use instead of stored), plus O(S K M P) for the association.
-
-Accuracy against the bound: BP beliefs are products of marginals, so the
-vehicle–feature correlation that the joint Kalman filter (`oracle-kf`) keeps is
-dropped every step (the paper's §V-B remark), and particle noise adds to it (it
-shrinks with N_p); rsu-bp therefore stays above the known-association bound.
-`python benchmarks/rsu_bp.py` measures its speed and its RMSE ratio to `oracle-kf`
-over several runs (one run's RMSE is a time average of strongly correlated errors,
-so a ratio from a run or two is not a measurement), and `cooploc reproduce
-froehle2018` sets it beside the paper's figures.
-
-Choices the paper leaves open (DESIGN note):
-- Vehicle births: the prior of `Setup.vehicle_prior` (or a broad belief at the first
-  fix, `estimators.base.birth_beliefs`), Kalman-updated with the first GNSS fix and
-  sampled — sampling the exact posterior avoids the degeneracy of weighting prior
-  particles (10 m spread) with a 0.1 m GNSS likelihood.
-- Feature initialisation (the paper's footnote 1, "GNSS plus V2F measurement"): the
-  K features of `Setup.feature_prior` stay Gaussian (their predicted prior) until the
-  first step with V2F rows. Then feature k is drawn around the k-th row of the
-  best-localised vehicle (position H x + z + w, x from that vehicle's particles;
-  velocity from the Gaussian prior conditioned on that position), its rows ranked by
-  how well other vehicles' rows corroborate them (clutter is seen by one vehicle
-  only); features beyond that vehicle's rows are drawn from all rows at once. The
-  V2F rows of that step are used for this only.
-  The features' priors are identical, so which estimated feature id matches which
-  true feature is arbitrary: feature RMSE and association accuracy by id are only
-  meaningful up to this relabelling.
-- β, γ, μ use normalised messages, so the (1 − P_D) term weighs against a likelihood
-  averaged over a probability distribution; the paper's P_D = 1 case has (1 − P_D) = 0.
-- After resampling, every resampled belief takes a Liu–West shrinkage move
-  (`particles.shrinkage_move`; same mean and covariance, fresh particles;
-  `shrinkage_move=false` turns it off). Without it, a vehicle whose 10 m birth prior
-  collapses onto the few particles that fit the first V2F update keeps only their
-  velocities, and process noise restores the spread so slowly that a wrong velocity
-  can drive the position metres off for tens of steps. The paper
-  only says it resamples; kernel smoothing of the particles is the usual companion in
-  nonparametric BP.
-- A message that vanishes at every particle (e.g. all kernel values underflow) is
-  replaced by a constant (no information) rather than producing NaN.
-- V2F rows of sensors that are not present, GNSS rows of unknown vehicles, and
-  anonymous GNSS rows are ignored.
+The messages written out, the complexity, and the choices the paper leaves open (vehicle
+births, feature initialisation, normalised messages, the shrinkage move after
+resampling, vanishing messages, ignored rows): docs/rsu_bp.md.
 """
 
 from __future__ import annotations
