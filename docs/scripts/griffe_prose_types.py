@@ -5,15 +5,22 @@ cooploc's numpy-style docstrings put the description on the ``name :`` line itse
 API pages would show the description in the *Type* column, in code font, and leave the
 *Description* column empty. For every parameter, attribute and return entry whose "type"
 is prose (not a Python expression), this moves it to the front of the description and
-takes the type from the signature's annotation instead. The docstrings stay as they are.
+takes the type from the signature's annotation instead. A reStructuredText
+``.. math::`` line becomes ``$$ … $$`` (typeset by arithmatex and MathJax), with a
+trailing ``(`name`)`` reference kept as text after it. The docstrings stay as they are.
 """
 
 from __future__ import annotations
 
+import re
 from functools import cached_property
 from typing import Any
 
 import griffe
+
+# `.. math:: body` and the more-indented lines that continue it
+_MATH = re.compile(r"^(?P<indent>[ ]*)\.\. math::[ ]*(?P<body>.+(?:\n(?P=indent)[ ]+\S.*)*)", re.MULTILINE)
+_CODE_REF = re.compile(r"\s*\(`[^`]+`\)[,.;]?")
 
 _SECTIONS = (griffe.DocstringSectionParameters, griffe.DocstringSectionAttributes,
              griffe.DocstringSectionOtherParameters, griffe.DocstringSectionReturns)
@@ -47,12 +54,20 @@ def _fix(obj: griffe.Object, sections: list[griffe.DocstringSection]) -> None:
                                and isinstance(obj, griffe.Function) else _declared(obj, item.name))
 
 
+def _math_block(match: re.Match[str]) -> str:
+    body = " ".join(line.strip() for line in match["body"].splitlines())
+    refs = "".join(ref.strip() + " " for ref in _CODE_REF.findall(body)).strip()
+    math = _CODE_REF.sub("", body).strip().rstrip(",.;")
+    return f"{match['indent']}$$ {math} $$" + (f"\n\n{match['indent']}{refs}" if refs else "")
+
+
 class _ProseDocstring(griffe.Docstring):
     """A docstring whose parsed sections get `_fix`: parsed when first rendered, as usual
     (after every extension has run, so that dataclass signatures are complete)."""
 
     @cached_property
     def parsed(self) -> list[griffe.DocstringSection]:
+        self.value = _MATH.sub(_math_block, self.value)
         sections = self.parse()
         if self.parent is not None:
             _fix(self.parent, sections)
