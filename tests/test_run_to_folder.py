@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+from cooploc.backends import completed
 from cooploc.experiment import ExperimentConfig, execute, iter_runs, run_experiment
 from cooploc.metrics import ErrorTable
 from cooploc.results import RUNS_FOLDER, merge_runs, read_runs, run_to_folder, write_results, write_run
@@ -147,6 +148,6 @@ def test_execute_takes_tasks_lazily():
 
 
 def iter_runs_of(tasks):
-    from cooploc.experiment import _completed
+    from cooploc.experiment import _run_task
 
-    return (result for _, result in _completed(tasks, "serial"))
+    return (result for _, result in completed(_run_task, tasks, "serial"))

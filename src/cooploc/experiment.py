@@ -39,9 +39,10 @@ Streaming
 ---------
 `iter_runs` yields the runs of an experiment as they finish (completion order, each
 numbered by `RunResult.run`); `execute`, `run_experiment` and `run_sweep` put them back
-in task order, and take an optional `on_result` callback. Tasks are generated lazily
-and at most a few per worker are in flight, so a large `runs` builds no big list up
-front. `cooploc.results.run_to_folder` writes each run to disk as it finishes.
+in task order, and take an optional `on_result` callback. The backends
+(`cooploc.backends`) take the (config, run) tasks lazily, a few per worker ahead, so a
+large `runs` builds no big list up front. `cooploc.results.run_to_folder` writes each
+run to disk as it finishes.
 
 The summary of results and the results folder are `cooploc.results`.
 """
@@ -49,19 +50,17 @@ The summary of results and the results folder are `cooploc.results`.
 from __future__ import annotations
 
 import dataclasses
-import itertools
-import os
 import time
 import traceback
 import zlib
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence, Sized
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from cooploc._version import __version__
+from cooploc.backends import BACKENDS, completed
 from cooploc.errors import ConfigError, EstimatorError
 from cooploc.metrics import ErrorTable, evaluate, ospa_per_step, score_association
 from cooploc.params import Params
@@ -85,7 +84,6 @@ __all__ = [
     "run_sweep",
 ]
 
-BACKENDS: tuple[str, ...] = ("serial", "processes", "dask")
 
 
 @dataclass(frozen=True)
@@ -415,59 +413,8 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
 Task = tuple[ExperimentConfig, int]
 
 
-def _worker_init() -> None:
-    # Workers are single-threaded so that n workers use n cores, not n × BLAS threads.
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-
-
 def _run_task(task: Task) -> RunResult:
     return run_one(*task)
-
-
-IN_FLIGHT_PER_WORKER = 2  # tasks handed out ahead per worker: busy workers, no big queue
-
-
-def _completed(tasks: Iterable[Task], backend: str = "processes", workers: int | None = None
-               ) -> Iterator[tuple[int, RunResult]]:
-    """(task index, result) of every task as it finishes (completion order).
-
-    `tasks` is consumed lazily: at most IN_FLIGHT_PER_WORKER tasks per worker are
-    submitted ahead. Closing the generator (the caller stopped or was interrupted)
-    cancels the tasks not started yet.
-    """
-    if backend not in BACKENDS:
-        raise ConfigError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
-    n_workers = workers or os.cpu_count() or 1
-    if isinstance(tasks, Sized):
-        n_workers = max(min(n_workers, len(tasks)), 1)
-        if len(tasks) == 1:
-            backend = "serial"  # one task: no pool to start
-    numbered = enumerate(tasks)
-    if backend == "serial" or (backend == "processes" and n_workers == 1):
-        for i, task in numbered:
-            yield i, _run_task(task)
-    elif backend == "processes":
-        yield from _process_results(numbered, n_workers)
-    else:
-        yield from _dask_results(numbered, n_workers)
-
-
-def _process_results(numbered: Iterator[tuple[int, Task]], workers: int
-                     ) -> Iterator[tuple[int, RunResult]]:
-    pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init)
-    pending: dict[Future[RunResult], int] = {}
-    try:
-        for i, task in itertools.islice(numbered, IN_FLIGHT_PER_WORKER * workers):
-            pending[pool.submit(_run_task, task)] = i
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for future in sorted(done, key=pending.__getitem__):  # a stable order among ties
-                for i, task in itertools.islice(numbered, 1):
-                    pending[pool.submit(_run_task, task)] = i
-                yield pending.pop(future), future.result()
-    finally:
-        pool.shutdown(wait=not pending, cancel_futures=True)
 
 
 def execute(tasks: Iterable[Task], backend: str = "processes", workers: int | None = None,
@@ -479,50 +426,13 @@ def execute(tasks: Iterable[Task], backend: str = "processes", workers: int | No
     write it to disk; `progress` is called once per finished task.
     """
     results: dict[int, RunResult] = {}
-    for i, result in _completed(tasks, backend, workers):
+    for i, result in completed(_run_task, tasks, backend, workers):
         results[i] = result
         if on_result is not None:
             on_result(result)
         if progress is not None:
             progress()
     return [results[i] for i in sorted(results)]
-
-
-def _dask_results(numbered: Iterator[tuple[int, Task]], workers: int
-                  ) -> Iterator[tuple[int, RunResult]]:
-    """Run tasks on the current dask.distributed client, or a local cluster of `workers`."""
-    try:
-        from dask.distributed import Client, LocalCluster
-        from dask.distributed import as_completed as dask_completed
-    except ImportError as exc:
-        raise ConfigError(
-            "backend 'dask' needs the dask extra: pip install 'cooploc[dask]'"
-        ) from exc
-    try:
-        client, own = Client.current(), False
-    except ValueError:  # no client yet: start a local one for this experiment
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
-        client, own = Client(cluster), True
-    try:
-        index: dict[str, int] = {}
-        queue = dask_completed()
-
-        def submit(i: int, task: Task) -> None:
-            future = client.submit(_run_task, task, pure=False)
-            index[future.key] = i
-            queue.add(future)
-
-        for i, task in itertools.islice(numbered, IN_FLIGHT_PER_WORKER * workers):
-            submit(i, task)
-        for future in queue:  # futures added while iterating are waited for too
-            for i, task in itertools.islice(numbered, 1):
-                submit(i, task)
-            yield index.pop(future.key), future.result()
-    finally:
-        if own:
-            client.close()
-            cluster.close()
 
 
 class _Progress:
@@ -586,7 +496,7 @@ def iter_runs(config: ExperimentConfig, progress: bool = False) -> Iterator[RunR
     """
     tasks = _Tasks([config])
     with _Progress(len(tasks), f"{config.scenario}: runs", progress) as tick:
-        for _, result in _completed(tasks, config.backend, config.workers):
+        for _, result in completed(_run_task, tasks, config.backend, config.workers):
             tick()
             yield result
 
