@@ -191,7 +191,6 @@ def write_results(result: ExperimentResult, out: str | os.PathLike[str], *,
     failed), figures and report.md to `out`; `stopped_by` (for an incomplete result) says
     what interrupted it. summary.json is written last: once it is there, so is the rest."""
     import pyarrow.parquet as pq
-    import tomli_w
 
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
@@ -200,7 +199,7 @@ def write_results(result: ExperimentResult, out: str | os.PathLike[str], *,
         summary["stopped_by"] = stopped_by
     text = json.dumps(summary, indent=2, allow_nan=False) + "\n"  # strict JSON, or an error here
     _atomic(folder / "errors.parquet", lambda path: pq.write_table(errors_frame(result), path))
-    (folder / "config.toml").write_text(tomli_w.dumps(_toml_ready(result.config.to_dict())))
+    _write_config(result.config, folder)
     _write_failures_log(result.failures(), folder / FAILURES_LOG)
     figures = run_figures(result, summary, folder)
     (folder / "report.md").write_text(run_report(summary, figures))
@@ -209,6 +208,12 @@ def write_results(result: ExperimentResult, out: str | os.PathLike[str], *,
 
 
 FAILURES_LOG = "failures.log"
+
+
+def _write_config(config: ExperimentConfig, folder: Path) -> None:
+    import tomli_w
+
+    (folder / "config.toml").write_text(tomli_w.dumps(_toml_ready(config.to_dict())))
 
 
 def _write_failures_log(failures: list[Failure], path: Path) -> None:
@@ -243,14 +248,13 @@ def run_to_folder(config: ExperimentConfig, out: str | os.PathLike[str], *,
     figures and report.md, and the exception is raised again. Once a complete
     experiment is merged, `out/runs/` is removed; an incomplete one keeps it.
     """
-    import tomli_w
-
     folder = Path(out)
     parts = folder / RUNS_FOLDER
     parts.mkdir(parents=True, exist_ok=True)
-    for stale in parts.glob("run-*"):  # parts of an earlier experiment in this folder
-        stale.unlink()
-    (folder / "config.toml").write_text(tomli_w.dumps(_toml_ready(config.to_dict())))
+    # what an earlier experiment left here would be taken for this one's until the merge
+    for stale in [*parts.glob("run-*"), folder / "summary.json"]:
+        stale.unlink(missing_ok=True)
+    _write_config(config, folder)
     try:
         with contextlib.closing(iter_runs(config, progress)) as runs:
             for run in runs:
@@ -321,8 +325,7 @@ def merge_runs(folder: str | os.PathLike[str], config: ExperimentConfig | None =
     folder = Path(folder)
     if config is None:
         config = ExperimentConfig.from_dict(_read_toml(folder / "config.toml"))
-    wanted = set(range(config.runs))
-    result = ExperimentResult(config, tuple(r for r in read_runs(folder) if r.run in wanted))
+    result = ExperimentResult(config, tuple(r for r in read_runs(folder) if 0 <= r.run < config.runs))
     write_results(result, folder, stopped_by=None if result.complete else stopped_by or "not finished")
     if result.complete:
         for part in (folder / RUNS_FOLDER).glob("run-*"):
