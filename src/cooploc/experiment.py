@@ -403,7 +403,7 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
             errors[spec.name] = evaluate(recording, estimates)
             ospa[spec.name] = ospa_per_step(recording, estimates)
         seconds[spec.name], steps[spec.name] = timer.seconds, timer.steps
-    return RunResult(run, errors, seconds, steps, association, discarded, ospa, failures)
+    return RunResult(run, errors, seconds, steps, association, discarded, ospa, failures=failures)
 
 
 # ----------------------------------------------------------------------------

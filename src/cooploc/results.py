@@ -307,11 +307,11 @@ def read_runs(folder: str | os.PathLike[str]) -> list[RunResult]:
                   for name in record["n_steps"]}
         runs.append(RunResult(
             record["run"], errors, record["step_seconds"], record["n_steps"],
-            {k: tuple(v) for k, v in record["association"].items()},
-            {k: tuple(v) for k, v in record["discarded"].items()},
-            {k: np.array(v, dtype=float) for k, v in record["ospa"].items()},
-            {k: Failure(k, record["run"], f["step"], f["what"], f["traceback"])
-             for k, f in record["failures"].items()},
+            association={k: tuple(v) for k, v in record["association"].items()},
+            discarded={k: tuple(v) for k, v in record["discarded"].items()},
+            ospa={k: np.array(v, dtype=float) for k, v in record["ospa"].items()},
+            failures={k: Failure(k, record["run"], f["step"], f["what"], f["traceback"])
+                      for k, f in record["failures"].items()},
         ))
     runs.sort(key=lambda r: r.run)
     return runs
