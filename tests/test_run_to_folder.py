@@ -151,3 +151,17 @@ def iter_runs_of(tasks):
     from cooploc.experiment import _run_task
 
     return (result for _, result in completed(_run_task, tasks, "serial"))
+
+
+def test_the_command_line_reports_an_interrupted_run(tmp_path):
+    from typer.testing import CliRunner
+
+    from cooploc.cli import app
+
+    with faulty("interrupt", at=2, p_fail=1.0) as name:
+        result = CliRunner().invoke(app, ["run", "froehle2018", "-e", "gnss-kf", "-e", name, "--runs", "3",
+                                          "--set", "n_steps=5", "--backend", "serial", "--no-progress",
+                                          "--out", str(tmp_path / "out")], env={"COLUMNS": "250"})
+    assert result.exit_code == 130
+    assert "incomplete: 0 of 3 runs finished (stopped by KeyboardInterrupt)" in result.output
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["complete"] is False
