@@ -42,7 +42,9 @@ def _numbers(summary: dict) -> dict:
 
 def test_summary_follows_the_contract():
     summary = summarize(run_experiment(_config()))
-    assert set(summary) == {"cooploc_version", "scenario", "params", "runs", "seed", "estimators"}
+    assert set(summary) == {"cooploc_version", "scenario", "params", "runs", "seed", "estimators",
+                            "complete", "runs_finished"}
+    assert summary["complete"] is True and summary["runs_finished"] == 3
     assert summary["scenario"] == "froehle2018" and summary["runs"] == 3 and summary["seed"] == 5
     for name in ("gnss-kf", "oracle-kf"):
         est = summary["estimators"][name]
@@ -53,6 +55,7 @@ def test_summary_follows_the_contract():
         assert all(len(v) == 3 for v in est["per_run_vehicle_rmse"].values())
         assert est["heading_rmse_all"] is None  # CV layout has no heading
         assert est["steps_per_second"] > 0
+        assert est["failed_runs"] == [] and est["diverged_runs"] == []
     assert summary["estimators"]["gnss-kf"]["feature_rmse_all"] is None
     assert summary["estimators"]["oracle-kf"]["feature_rmse_all"] > 0
     # pooled RMSE is the root of the mean of the per-vehicle mean squares (equal step counts)

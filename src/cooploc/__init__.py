@@ -40,6 +40,7 @@ _EXPORTS = {
     "presets": "cooploc.registry",
     "register_estimator": "cooploc.registry",
     "register_scenario": "cooploc.registry",
+    "run_to_folder": "cooploc.results",
     "summarize": "cooploc.results",
     "write_results": "cooploc.results",
     "Batch": "cooploc.types",
@@ -81,6 +82,7 @@ __all__ = [
     "rmse",
     "run_experiment",
     "run_sweep",
+    "run_to_folder",
     "summarize",
     "write_results",
 ]
@@ -110,5 +112,5 @@ if TYPE_CHECKING:  # what static tools see
         register_estimator,
         register_scenario,
     )
-    from cooploc.results import summarize, write_results
+    from cooploc.results import run_to_folder, summarize, write_results
     from cooploc.types import Batch, Estimate, Frame, Recording, Setup, StateLayout, StateSet, Truth

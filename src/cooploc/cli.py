@@ -110,8 +110,8 @@ def run(
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Run estimators on a scenario for N Monte Carlo runs and write a results folder."""
-    from cooploc.experiment import ExperimentConfig, run_experiment
-    from cooploc.results import write_results
+    from cooploc.experiment import ExperimentConfig
+    from cooploc.results import run_to_folder
 
     if config is not None:
         if not config.is_file():
@@ -134,8 +134,11 @@ def run(
             backend=backend, workers=workers,
         )
     folder = out or Path("results") / cfg.scenario
-    result = run_experiment(cfg, progress=progress)
-    write_results(result, folder)
+    try:
+        run_to_folder(cfg, folder, progress=progress)  # run by run: Ctrl-C keeps the finished runs
+    except KeyboardInterrupt:
+        _print_summary(folder)
+        raise typer.Exit(130) from None
     _print_summary(folder)
 
 
@@ -159,6 +162,12 @@ def _print_summary(folder: Path) -> None:
                       "–" if sps is None else f"{sps:.0f}")
     console = Console()
     console.print(table)
+    from rich.markup import escape
+
+    from cooploc.plots import run_notes
+
+    for note in run_notes(summary):  # failed / diverged estimator-runs, an unfinished experiment
+        console.print(f"[bold red]![/] {escape(note)}", highlight=False)
     console.print(f"results: {folder}/ (summary.json, errors.parquet, config.toml, report.md, figures)")
 
 

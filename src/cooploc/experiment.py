@@ -20,44 +20,70 @@ frame, then, for an estimator with a `smooth() -> list[Estimate]` method (batch
 smoothers, DESIGN §4), the smoothed estimates (one per frame) in place of the per-step
 ones; the time of `smooth` counts as step time (`StepTimer`).
 
+Failures
+--------
+An exception raised inside an estimator's `step` or `smooth` is the estimator's
+failure, not the experiment's: `estimate` turns it into an `EstimatorError` naming
+the estimator, the step and what failed (the exception's class and the first line of
+its message, bounded; the original is chained, so its traceback is kept), and so is
+an estimate whose means or covariances are not finite. Every `Exception` is wrapped,
+`CooplocError`s raised inside `step` too (the frames were checked when the recording
+was loaded or generated, so what goes wrong inside an estimator is the estimator's),
+except `MemoryError`, which says the machine is too small, not that the estimator
+failed; `KeyboardInterrupt` and `SystemExit` are not `Exception`s and stop the
+experiment. `run_one` records each failed estimator-run as a `Failure` in
+`RunResult.failures` (with the traceback text) and goes on with the other estimators,
+whose numbers do not depend on it (their generators are their own).
+
+Streaming
+---------
+`iter_runs` yields the runs of an experiment as they finish (completion order, each
+numbered by `RunResult.run`); `execute`, `run_experiment` and `run_sweep` put them back
+in task order, and take an optional `on_result` callback. The backends
+(`cooploc.backends`) take the (config, run) tasks lazily, a few per worker ahead, so a
+large `runs` builds no big list up front. `cooploc.results.run_to_folder` writes each
+run to disk as it finishes.
+
 The summary of results and the results folder are `cooploc.results`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
+import traceback
 import zlib
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from cooploc._version import __version__
-from cooploc.errors import ConfigError
+from cooploc.backends import BACKENDS, completed
+from cooploc.errors import ConfigError, EstimatorError
 from cooploc.metrics import ErrorTable, evaluate, ospa_per_step, score_association
 from cooploc.params import Params
 from cooploc.registry import get_estimator, get_preset, make_estimator
-from cooploc.types import Estimate, Frame, Recording
+from cooploc.types import Estimate, Frame, Recording, StateSet
 
 __all__ = [
     "BACKENDS",
     "EstimatorSpec",
     "ExperimentConfig",
     "ExperimentResult",
+    "Failure",
     "RunResult",
     "StepTimer",
     "estimate",
+    "execute",
+    "iter_runs",
     "run_experiment",
     "run_generators",
     "run_one",
     "run_sweep",
 ]
 
-BACKENDS: tuple[str, ...] = ("serial", "processes", "dask")
 
 
 @dataclass(frozen=True)
@@ -161,8 +187,39 @@ class ExperimentConfig:
 
 
 @dataclass(frozen=True)
+class Failure:
+    """An estimator-run that ended in an `EstimatorError`: where, what, and the traceback.
+
+    `step` is None where the failure was not at a step (e.g. in `smooth`); `what` is
+    the bounded one-line description, `traceback` the full text (chained exceptions
+    included) for failures.log.
+    """
+
+    estimator: str
+    run: int
+    step: int | None
+    what: str
+    traceback: str = ""
+
+    @classmethod
+    def of(cls, error: EstimatorError, run: int) -> Failure:
+        """The record of `error` (raised, so that it has a traceback) in run `run`."""
+        text = "".join(traceback.format_exception(type(error), error, error.__traceback__))
+        return cls(error.estimator, run, error.step, error.what, text)
+
+    @property
+    def message(self) -> str:
+        """One line naming the estimator, run, step and what failed."""
+        return str(EstimatorError(self.estimator, self.what, step=self.step, run=self.run))
+
+
+@dataclass(frozen=True)
 class RunResult:
-    """What one run returns: errors per estimator, time inside `step`, peak memory."""
+    """What one run returns: errors per estimator, time inside `step`, peak memory.
+
+    An estimator that failed in this run is in `failures` and in none of the other
+    dicts (its partial estimates are not scored).
+    """
 
     run: int
     errors: dict[str, ErrorTable]
@@ -171,20 +228,39 @@ class RunResult:
     association: dict[str, tuple[int, int]] = field(default_factory=dict)
     discarded: dict[str, tuple[int, int]] = field(default_factory=dict)
     ospa: dict[str, np.ndarray] = field(default_factory=dict)  # per step, m (metrics.ospa)
+    failures: dict[str, Failure] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
 class ExperimentResult:
-    """All runs of an experiment, in run order."""
+    """The runs of an experiment, in run order (all of them unless it was interrupted)."""
 
     config: ExperimentConfig
     runs: tuple[RunResult, ...]
 
     def errors(self, estimator: str) -> tuple[np.ndarray, ErrorTable]:
-        """(run index per row, concatenated error table) of one estimator."""
-        tables = [r.errors[estimator] for r in self.runs]
-        run = np.concatenate([np.full(len(t), r.run) for t, r in zip(tables, self.runs, strict=True)])
+        """(run index per row, concatenated error table) of one estimator, over the runs
+        it finished."""
+        done = [r for r in self.runs if estimator in r.errors]
+        tables = [r.errors[estimator] for r in done]
+        run = np.concatenate([np.full(len(t), r.run) for t, r in zip(tables, done, strict=True)]
+                             or [np.zeros(0, np.int64)])
         return run, ErrorTable.concatenate(tables)
+
+    @property
+    def complete(self) -> bool:
+        """Whether every run of the configuration finished."""
+        return len(self.runs) == self.config.runs
+
+    def failures(self) -> list[Failure]:
+        """Every failed estimator-run, in run order."""
+        return [f for r in self.runs for f in r.failures.values()]
+
+    def raise_failure(self) -> None:
+        """Raise the first failure as its `EstimatorError` (for callers that need every
+        estimator's numbers, e.g. a paper's figures)."""
+        for failure in self.failures():
+            raise EstimatorError(failure.estimator, failure.what, step=failure.step, run=failure.run)
 
 
 # ----------------------------------------------------------------------------
@@ -226,45 +302,108 @@ def estimate(estimator: Any, recording: Recording | Sequence[Frame], *, smooth: 
     `recording` is a `Recording` or its frames. `smooth=False` keeps the per-step
     (filtered) estimates of a batch smoother. With a `timer`, the seconds spent inside
     `step` and `smooth` (nothing else) are added to it, and the frames to its steps.
+
+    Raises
+    ------
+    EstimatorError
+        An exception inside `step` or `smooth` (see the module docstring for which), or
+        an estimate with a non-finite mean or covariance; it names the estimator, the
+        step (None for `smooth`) and what failed, and chains the original exception.
     """
     frames = recording.frames if isinstance(recording, Recording) else recording
+    name = _name(estimator)
     clock = time.perf_counter
     estimates, spent = [], 0.0
-    for frame in frames:
-        start = clock()
-        estimates.append(estimator.step(frame))
-        spent += clock() - start
-    smoother = getattr(estimator, "smooth", None)
-    if smooth and callable(smoother):  # batch smoother: its estimates replace the per-step ones
-        start = clock()
-        estimates = list(smoother())
-        spent += clock() - start
+    step: int | None = None
+    in_smooth = False
+    try:
+        for step, frame in enumerate(frames):
+            start = clock()
+            estimates.append(estimator.step(frame))
+            spent += clock() - start
+            _check_finite(name, estimates[-1], step)
+        smoother = getattr(estimator, "smooth", None)
+        if smooth and callable(smoother):  # batch smoother: its estimates replace the per-step ones
+            step, in_smooth = None, True
+            start = clock()
+            estimates = list(smoother())
+            spent += clock() - start
+            for k, smoothed in enumerate(estimates):
+                _check_finite(name, smoothed, k)
+    except EstimatorError as exc:
+        if exc.step is not None or step is None:
+            raise
+        raise exc.at(step=step) from exc
+    except MemoryError:
+        raise
+    except Exception as exc:  # the estimator's failure, see "Failures" in the module docstring
+        what = ("in smooth: " if in_smooth else "") + _describe(exc)
+        raise EstimatorError(name, what, step=step) from exc
     if timer is not None:
         timer.seconds += spent
         timer.steps += len(frames)
     return estimates
 
 
+WHAT_MAX_CHARS = 200  # of an EstimatorError's `what`: one line, never an array dump
+
+
+def _describe(exc: BaseException) -> str:
+    """`Class: first line of the message`, at most WHAT_MAX_CHARS characters."""
+    lines = str(exc).strip().splitlines()
+    text = f"{type(exc).__name__}: {lines[0]}" if lines else type(exc).__name__
+    return text if len(text) <= WHAT_MAX_CHARS else text[:WHAT_MAX_CHARS - 1] + "…"
+
+
+def _name(estimator: Any) -> str:
+    return getattr(type(estimator), "name", None) or type(estimator).__name__
+
+
+def _check_finite(name: str, estimate_k: Estimate, step: int) -> None:
+    """Raise unless every mean and covariance of the estimate is finite. A `StateSet` has
+    been checked on construction (`types.float_array`) and its arrays are read-only, so
+    only beliefs built some other way (a plug-in's own classes) are tested here: the
+    check costs nothing for the built-in estimators."""
+    for part in ("vehicles", "features"):
+        states = getattr(estimate_k, part)
+        if states is None or type(states) is StateSet:
+            continue
+        for array in ("mean", "cov"):
+            if not np.isfinite(getattr(states, array)).all():
+                raise EstimatorError(name, f"non-finite estimate ({part}.{array})", step=step)
+
+
 def run_one(config: ExperimentConfig, run: int) -> RunResult:
-    """Simulate run `run` and process it with every estimator of the config."""
+    """Simulate run `run` and process it with every estimator of the config.
+
+    An estimator that fails (`EstimatorError`) is recorded in `RunResult.failures`; the
+    other estimators go on.
+    """
     preset = get_preset(config.scenario)
     names = [e.name for e in config.estimators]
     scenario_rng, estimator_rngs = run_generators(config.seed, run, names)
     recording = preset.generate(scenario_rng, config.scenario_params)
     errors, seconds, steps, association, discarded, ospa = {}, {}, {}, {}, {}, {}
+    failures = {}
     for spec in config.estimators:
         estimator = make_estimator(spec.name, recording.setup, spec.params,
                                    estimator_rngs[spec.name], recording.truth)
         timer = StepTimer()
-        estimates, score = score_association(recording, estimate(estimator, recording, timer=timer))
+        try:
+            estimates = estimate(estimator, recording, timer=timer)
+        except EstimatorError as exc:
+            failures[spec.name] = Failure.of(exc, run)
+            continue
+        estimates, score = score_association(recording, estimates)
         if score is not None and score.total:
             association[spec.name] = (score.correct, score.total)
         if score is not None and score.discarded is not None:
             discarded[spec.name] = (score.discarded, score.rows)
-        errors[spec.name] = evaluate(recording, estimates)
-        ospa[spec.name] = ospa_per_step(recording, estimates)
+        with np.errstate(over="ignore"):  # a diverged estimate's error overflows: summarize flags it
+            errors[spec.name] = evaluate(recording, estimates)
+            ospa[spec.name] = ospa_per_step(recording, estimates)
         seconds[spec.name], steps[spec.name] = timer.seconds, timer.steps
-    return RunResult(run, errors, seconds, steps, association, discarded, ospa)
+    return RunResult(run, errors, seconds, steps, association, discarded, ospa, failures=failures)
 
 
 # ----------------------------------------------------------------------------
@@ -274,66 +413,26 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
 Task = tuple[ExperimentConfig, int]
 
 
-def _worker_init() -> None:
-    # Workers are single-threaded so that n workers use n cores, not n × BLAS threads.
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-
-
 def _run_task(task: Task) -> RunResult:
     return run_one(*task)
 
 
-def execute(tasks: Sequence[Task], backend: str = "processes", workers: int | None = None,
-            progress: Callable[[], None] | None = None) -> list[RunResult]:
-    """Run every (config, run) task with the backend; results in task order."""
-    results: list[RunResult | None] = [None] * len(tasks)
-    tick = progress or (lambda: None)
-    n_workers = workers or os.cpu_count() or 1
-    if backend == "serial" or len(tasks) == 1 or (backend == "processes" and n_workers == 1):
-        for i, task in enumerate(tasks):
-            results[i] = _run_task(task)
-            tick()
-    elif backend == "processes":
-        with ProcessPoolExecutor(max_workers=min(n_workers, len(tasks)),
-                                 initializer=_worker_init) as pool:
-            futures = {pool.submit(_run_task, task): i for i, task in enumerate(tasks)}
-            for future in as_completed(futures):
-                results[futures[future]] = future.result()
-                tick()
-    elif backend == "dask":
-        for i, result in _dask_results(tasks, n_workers):
-            results[i] = result
-            tick()
-    else:
-        raise ConfigError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
-    return [r for r in results if r is not None]
+def execute(tasks: Iterable[Task], backend: str = "processes", workers: int | None = None,
+            progress: Callable[[], None] | None = None,
+            on_result: Callable[[RunResult], None] | None = None) -> list[RunResult]:
+    """Run every (config, run) task with the backend; results in task order.
 
-
-def _dask_results(tasks: Sequence[Task], workers: int) -> Iterator[tuple[int, RunResult]]:
-    """Run tasks on the current dask.distributed client, or a local cluster of `workers`."""
-    try:
-        from dask.distributed import Client, LocalCluster
-        from dask.distributed import as_completed as dask_completed
-    except ImportError as exc:
-        raise ConfigError(
-            "backend 'dask' needs the dask extra: pip install 'cooploc[dask]'"
-        ) from exc
-    try:
-        client, own = Client.current(), False
-    except ValueError:  # no client yet: start a local one for this experiment
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
-        client, own = Client(cluster), True
-    try:
-        futures = client.map(_run_task, list(tasks), pure=False)
-        index = {f.key: i for i, f in enumerate(futures)}
-        for future in dask_completed(futures):
-            yield index[future.key], future.result()
-    finally:
-        if own:
-            client.close()
-            cluster.close()
+    `on_result` is called with each result as it finishes (completion order), e.g. to
+    write it to disk; `progress` is called once per finished task.
+    """
+    results: dict[int, RunResult] = {}
+    for i, result in completed(_run_task, tasks, backend, workers):
+        results[i] = result
+        if on_result is not None:
+            on_result(result)
+        if progress is not None:
+            progress()
+    return [results[i] for i in sorted(results)]
 
 
 class _Progress:
@@ -365,12 +464,41 @@ class _Progress:
             self.bar.stop()
 
 
-def run_experiment(config: ExperimentConfig, progress: bool = False) -> ExperimentResult:
-    """All runs of `config` with its backend."""
-    tasks = [(config, r) for r in range(config.runs)]
+class _Tasks:
+    """The (config, run) tasks of every config in order, made as they are taken (a large
+    `runs` builds no list up front)."""
+
+    def __init__(self, configs: Sequence[ExperimentConfig]) -> None:
+        self.configs = tuple(configs)
+
+    def __len__(self) -> int:
+        return sum(c.runs for c in self.configs)
+
+    def __iter__(self) -> Iterator[Task]:
+        return ((c, r) for c in self.configs for r in range(c.runs))
+
+
+def run_experiment(config: ExperimentConfig, progress: bool = False,
+                   on_result: Callable[[RunResult], None] | None = None) -> ExperimentResult:
+    """All runs of `config` with its backend; `on_result` is called with each run as it
+    finishes (completion order; the returned result is in run order either way)."""
+    tasks = _Tasks([config])
     with _Progress(len(tasks), f"{config.scenario}: runs", progress) as tick:
-        results = execute(tasks, config.backend, config.workers, tick)
+        results = execute(tasks, config.backend, config.workers, tick, on_result)
     return ExperimentResult(config, tuple(results))
+
+
+def iter_runs(config: ExperimentConfig, progress: bool = False) -> Iterator[RunResult]:
+    """The runs of `config` as they finish (completion order), with its backend.
+
+    Stopping the iteration (or an interrupt) cancels the runs not started yet. The
+    numbers are those of `run_experiment`: sort by `RunResult.run` to get its order.
+    """
+    tasks = _Tasks([config])
+    with _Progress(len(tasks), f"{config.scenario}: runs", progress) as tick:
+        for _, result in completed(_run_task, tasks, config.backend, config.workers):
+            tick()
+            yield result
 
 
 def run_sweep(
@@ -401,7 +529,7 @@ def run_sweep(
                 raise ConfigError(f"sweep target {target!r} is not among the estimators")
             cfg = dataclasses.replace(config, estimators=tuple(specs))
         configs.append(cfg)
-    tasks = [(cfg, r) for cfg in configs for r in range(cfg.runs)]
+    tasks = _Tasks(configs)
     with _Progress(len(tasks), f"sweep {key}", progress) as tick:
         results = execute(tasks, config.backend, config.workers, tick)
     out, i = [], 0

@@ -84,10 +84,16 @@ KIND_NAMES = {VEHICLE: "vehicle", FEATURE: "feature"}
 
 
 def rmse(errors: npt.ArrayLike) -> float:
-    """sqrt(mean(e²)) of the finite entries; NaN for none."""
+    """sqrt(mean(e²)) of the entries that are not NaN; NaN for none.
+
+    NaN means "no such error" (a component the layout lacks, a point left unestimated)
+    and is skipped; an infinite error (a diverged estimate) is not: the RMSE is then
+    infinite, never the RMSE of the others.
+    """
     e = np.asarray(errors, dtype=float)
-    e = e[np.isfinite(e)]
-    return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
+    e = e[~np.isnan(e)]
+    with np.errstate(over="ignore"):  # a diverged error squares to inf: that is the answer
+        return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
 
 
 def per_entity_rmse(ids: IntArray, errors: FloatArray) -> dict[int, float]:

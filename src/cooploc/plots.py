@@ -9,7 +9,9 @@
 - Pieces of the paper figures: `figure_panels` (a grid of panels under one title),
   `cdf_step` (an empirical CDF on a panel), `trajectory_panel` (true and estimated
   paths), `save_figure`.
-- `run_figures` / `run_report`: what `cooploc run` writes beside summary.json.
+- `run_figures` / `run_report`: what `cooploc run` writes beside summary.json;
+  `run_notes`: the failed and diverged estimator-runs and an unfinished experiment, one
+  line each (in the report and on the terminal).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ __all__ = [
     "pyplot",
     "rmse_over_time",
     "run_figures",
+    "run_notes",
     "run_report",
     "save_figure",
     "sweep_plot",
@@ -84,7 +87,8 @@ def save_figure(fig: Figure, path: Path) -> Path:
 
 
 def _save(fig: Figure, axes: np.ndarray, path: Path) -> Path:
-    axes[0].legend(fontsize=8)
+    if axes[0].get_legend_handles_labels()[0]:  # nothing drawn (no run finished): no legend
+        axes[0].legend(fontsize=8)
     return save_figure(fig, path)
 
 
@@ -214,14 +218,35 @@ def format_number(value: float | None, digits: int = 3) -> str:
     return "–" if value is None else f"{value:.{digits}g}"
 
 
+def run_notes(summary: Mapping[str, Any]) -> list[str]:
+    """What did not go as planned, one line each: an unfinished experiment, every failed
+    estimator-run (with what failed) and every diverged one."""
+    notes = []
+    if summary.get("complete") is False:
+        notes.append(f"incomplete: {summary['runs_finished']} of {summary['runs']} runs finished"
+                     + (f" (stopped by {summary['stopped_by']})" if summary.get("stopped_by") else ""))
+    for name, e in summary["estimators"].items():
+        for f in e.get("failed_runs", []):
+            at = f" at step {f['step']}" if f["step"] is not None else ""
+            notes.append(f"{name} failed in run {f['run']}{at}: {f['error']}")
+        for d in e.get("diverged_runs", []):
+            notes.append(f"{name} diverged in run {d['run']} from step {d['step']} (non-finite error)")
+    return notes
+
+
 def run_report(summary: Mapping[str, Any], figures: Sequence[tuple[str, str]]) -> str:
     """Short Markdown report of a `cooploc run` results folder."""
     est = summary["estimators"]
     ids = sorted({vid for e in est.values() for vid in e["vehicle_rmse"]}, key=int)
     shown = ids[:MAX_PANELS]
+    notes = run_notes(summary)
     lines = [
         f"# {summary['scenario']}: {summary['runs']} runs, seed {summary['seed']}",
         "",
+        *(["**Not everything ran** (details in `summary.json`, tracebacks in `failures.log`); the "
+           "figures are over the estimator-runs that finished; a diverged one leaves its pooled "
+           "RMSE blank:", "",
+           *(f"- {n}" for n in notes), ""] if notes else []),
         f"cooploc {summary['cooploc_version']}. RMSE = sqrt(mean squared 2-D position error)"
         " over steps and runs. Estimators marked † know the true association "
         "(accuracy bound, not a method).",

@@ -3,71 +3,138 @@
 - `summarize(result)`: the `summary.json` contract — per estimator, vehicle RMSE per id
   and pooled, per-run RMSE, feature and heading RMSE, association accuracy, the share
   of V2F rows left unused, steps per second, and Zhang 2016's total error (eq. 20) and
-  OSPA.
+  OSPA; the failed and the diverged estimator-runs; whether every run finished.
 - `errors_frame(result)`: the long `errors.parquet` table (one row per run × step ×
   estimator × entity).
-- `write_results(result, out)`: summary.json, errors.parquet, config.toml, the figures
-  and report.md of `cooploc.plots` in one folder.
+- `write_results(result, out)`: summary.json, errors.parquet, config.toml, failures.log
+  (if any estimator-run failed), the figures and report.md of `cooploc.plots` in one
+  folder.
+- `run_to_folder(config, out)`: runs the experiment writing each run to `out/runs/` as
+  it finishes (`write_run`), then merges the runs into the files above (`merge_runs`);
+  interrupted (Ctrl-C, an error), it still merges the finished runs, marked
+  ``"complete": false``. A folder whose process was killed before merging is merged
+  by `merge_runs(folder)`.
+
+Failures, divergence and strict JSON
+------------------------------------
+summary.json is strict JSON: every number is finite or null (non-finite parameter
+values are written as the strings "inf", "-inf", "nan"). An estimator-run that ended
+in an `EstimatorError` is listed in `failed_runs` and its metrics are computed over
+the runs the estimator finished. A *diverged* estimator-run is one whose position
+error is not finite (or whose square overflows) somewhere: it is listed in
+`diverged_runs`, and every pooled figure that would include it (per id, per run, all
+vehicles, features, heading, total error) is null rather than computed without it.
+A NaN in `err_vel` / `err_heading` only means the layout has no such component, and
+entities not estimated or not present have no rows at all; neither counts as
+divergence.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
-from collections.abc import Mapping
+import sys
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from cooploc._version import __version__
-from cooploc.experiment import ExperimentResult
-from cooploc.metrics import FEATURE, KIND_NAMES, VEHICLE, per_entity_rmse, rmse, total_rmse
+from cooploc.experiment import ExperimentConfig, ExperimentResult, Failure, RunResult, iter_runs
+from cooploc.metrics import FEATURE, KIND_NAMES, VEHICLE, ErrorTable, per_entity_rmse, rmse, total_rmse
 from cooploc.plots import run_figures, run_report
 
-__all__ = ["errors_frame", "summarize", "write_results"]
+__all__ = ["errors_frame", "merge_runs", "read_runs", "run_to_folder", "summarize", "write_results",
+           "write_run"]
+
+RUNS_FOLDER = "runs"  # the per-run parts of `run_to_folder`, inside the results folder
 
 
 def _finite_or_none(value: float) -> float | None:
     return None if value is None or not np.isfinite(value) else float(value)
 
 
+def _diverged(err_pos: np.ndarray) -> np.ndarray:
+    """Rows whose position error is not finite or overflows when squared (see the module
+    docstring: position errors always apply, so a non-finite one is a diverged estimate)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return ~np.isfinite(np.square(err_pos))
+
+
+def _pooled(errors: np.ndarray, diverged: np.ndarray) -> float | None:
+    """RMSE of the rows, null if any of them diverged (never computed without them)."""
+    return None if diverged.any() else _finite_or_none(rmse(errors))
+
+
+def _diverged_runs(run: np.ndarray, table: ErrorTable, diverged: np.ndarray) -> list[dict[str, Any]]:
+    """Per diverged run: its first diverged step and the vehicle and feature ids that diverged."""
+    out = []
+    for r in np.unique(run[diverged]):
+        rows = diverged & (run == r)
+        out.append({"run": int(r), "step": int(table.step[rows].min()),
+                    "vehicles": sorted({int(i) for i in table.id[rows & (table.kind == VEHICLE)]}),
+                    "features": sorted({int(i) for i in table.id[rows & (table.kind == FEATURE)]})})
+    return out
+
+
+def _json_ready(value: Any) -> Any:
+    """Non-finite floats (parameters such as an unlimited range) as strings: strict JSON."""
+    if isinstance(value, Mapping):
+        return {k: _json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_ready(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return str(value)
+    return value
+
+
+@np.errstate(over="ignore")  # a diverged error overflows when squared: it is flagged, not warned about
 def summarize(result: ExperimentResult) -> dict[str, Any]:
-    """The `summary.json` contract of DESIGN §6."""
+    """The `summary.json` contract of DESIGN §6 (plus the keys the module docstring and the
+    README list: failures, divergence, completeness)."""
     config = result.config
     out: dict[str, Any] = {
         "cooploc_version": __version__,
         "scenario": config.scenario,
-        "params": config.scenario_params.to_dict(),
+        "params": _json_ready(config.scenario_params.to_dict()),
         "runs": config.runs,
         "seed": config.seed,
+        "complete": result.complete,
+        "runs_finished": len(result.runs),
         "estimators": {},
     }
+    if not result.complete:  # the per-run lists below follow these runs
+        out["finished_runs"] = [r.run for r in result.runs]
     for spec in config.estimators:
         run, table = result.errors(spec.name)
         vehicles = table.kind == VEHICLE
         features = table.kind == FEATURE
+        diverged = _diverged(table.err_pos)
         per_run: dict[str, list[float | None]] = {}
         vehicle_ids = np.unique(table.id[vehicles])
         for vid in vehicle_ids:
             rows = vehicles & (table.id == vid)
             per_run[str(int(vid))] = [
-                _finite_or_none(rmse(table.err_pos[rows & (run == r.run)])) for r in result.runs
+                _pooled(table.err_pos[rows & (run == r.run)], diverged[rows & (run == r.run)])
+                for r in result.runs
             ]
-        seconds = sum(r.step_seconds[spec.name] for r in result.runs)
-        steps = sum(r.n_steps[spec.name] for r in result.runs)
+        done = [r for r in result.runs if spec.name in r.errors]
+        seconds = sum(r.step_seconds[spec.name] for r in done)
+        steps = sum(r.n_steps[spec.name] for r in done)
         assoc = [r.association[spec.name] for r in result.runs if spec.name in r.association]
         dropped = [r.discarded[spec.name] for r in result.runs if spec.name in r.discarded]
         heading = table.err_heading[vehicles]
         ospa_steps = [r.ospa[spec.name] for r in result.runs if spec.name in r.ospa]
         out["estimators"][spec.name] = {
-            "params": spec.params.to_dict(),
-            "vehicle_rmse": {str(k): v for k, v in
+            "params": _json_ready(spec.params.to_dict()),
+            "vehicle_rmse": {str(k): _finite_or_none(v) for k, v in
                              per_entity_rmse(table.id[vehicles], table.err_pos[vehicles]).items()},
-            "vehicle_rmse_all": _finite_or_none(rmse(table.err_pos[vehicles])),
+            "vehicle_rmse_all": _pooled(table.err_pos[vehicles], diverged[vehicles]),
             "per_run_vehicle_rmse": per_run,
-            "feature_rmse_all": _finite_or_none(rmse(table.err_pos[features])),
-            "heading_rmse_all": _finite_or_none(rmse(heading)) if np.isfinite(heading).any()
+            "feature_rmse_all": _pooled(table.err_pos[features], diverged[features]),
+            "heading_rmse_all": _pooled(heading, diverged[vehicles]) if np.isfinite(heading).any()
             else None,
             "association_accuracy": (sum(c for c, _ in assoc) / sum(t for _, t in assoc))
             if assoc else None,
@@ -75,10 +142,14 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
             if dropped and sum(t for _, t in dropped) else None,
             "steps_per_second": steps / seconds if seconds > 0 else None,
             # added for Zhang 2016 (DESIGN §6 allows new keys): eq. (20) and OSPA (m)
-            "total_rmse": _finite_or_none(total_rmse(table.step[vehicles], table.err_pos[vehicles],
-                                                     run[vehicles])),
+            "total_rmse": None if diverged[vehicles].any() else _finite_or_none(
+                total_rmse(table.step[vehicles], table.err_pos[vehicles], run[vehicles])),
             "ospa": _finite_or_none(float(np.mean(np.concatenate(ospa_steps))))
             if ospa_steps else None,
+            # added by issue 16: nothing silent (the module docstring says what they mean)
+            "failed_runs": [{"run": f.run, "step": f.step, "error": f.what}
+                            for r in result.runs if (f := r.failures.get(spec.name)) is not None],
+            "diverged_runs": _diverged_runs(run, table, diverged),
         }
     return out
 
@@ -114,18 +185,159 @@ def errors_frame(result: ExperimentResult):  # -> pyarrow.Table
     return pa.concat_tables(parts)
 
 
-def write_results(result: ExperimentResult, out: str | os.PathLike[str]) -> Path:
-    """Write summary.json, errors.parquet, config.toml, figures and report.md to `out`."""
+def write_results(result: ExperimentResult, out: str | os.PathLike[str], *,
+                  stopped_by: str | None = None) -> Path:
+    """Write summary.json, errors.parquet, config.toml, failures.log (if any estimator-run
+    failed), figures and report.md to `out`; `stopped_by` (for an incomplete result) says
+    what interrupted it. summary.json is written last: once it is there, so is the rest."""
     import pyarrow.parquet as pq
-    import tomli_w
 
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     summary = summarize(result)
-    (folder / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    pq.write_table(errors_frame(result), folder / "errors.parquet")
-    (folder / "config.toml").write_text(tomli_w.dumps(_toml_ready(result.config.to_dict())))
+    if stopped_by is not None:
+        summary["stopped_by"] = stopped_by
+    text = json.dumps(summary, indent=2, allow_nan=False) + "\n"  # strict JSON, or an error here
+    _atomic(folder / "errors.parquet", lambda path: pq.write_table(errors_frame(result), path))
+    _write_config(result.config, folder)
+    _write_failures_log(result.failures(), folder / FAILURES_LOG)
     figures = run_figures(result, summary, folder)
     (folder / "report.md").write_text(run_report(summary, figures))
+    _atomic(folder / "summary.json", lambda path: path.write_text(text))
     return folder
 
+
+FAILURES_LOG = "failures.log"
+
+
+def _write_config(config: ExperimentConfig, folder: Path) -> None:
+    import tomli_w
+
+    (folder / "config.toml").write_text(tomli_w.dumps(_toml_ready(config.to_dict())))
+
+
+def _write_failures_log(failures: list[Failure], path: Path) -> None:
+    """One entry per failed estimator-run: its one-line message, then the traceback. No
+    failures: no file (a stale one from an earlier experiment is removed)."""
+    if not failures:
+        path.unlink(missing_ok=True)
+        return
+    entries = [f"{f.message}\n\n{f.traceback.rstrip()}\n" for f in failures]
+    path.write_text(("\n" + "-" * 78 + "\n\n").join(entries))
+
+
+def _atomic(path: Path, write: Callable[[Path], None]) -> None:
+    """`write(tmp)` then rename onto `path`: a reader never sees half a file."""
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+# ----------------------------------------------------------------------------
+# run by run: parts in out/runs/, merged at the end
+# ----------------------------------------------------------------------------
+
+
+def run_to_folder(config: ExperimentConfig, out: str | os.PathLike[str], *,
+                  progress: bool = False) -> Path:
+    """Run the experiment, writing each run to `out/runs/` as it finishes, then merge.
+
+    config.toml is written first. If the experiment is interrupted (KeyboardInterrupt)
+    or a run raises, the runs finished so far are merged into summary.json (with
+    ``"complete": false``, ``"runs_finished"``, ``"stopped_by"``), errors.parquet, the
+    figures and report.md, and the exception is raised again. Once a complete
+    experiment is merged, `out/runs/` is removed; an incomplete one keeps it.
+    """
+    folder = Path(out)
+    parts = folder / RUNS_FOLDER
+    parts.mkdir(parents=True, exist_ok=True)
+    # what an earlier experiment left here would be taken for this one's until the merge
+    for stale in [*parts.glob("run-*"), folder / "summary.json"]:
+        stale.unlink(missing_ok=True)
+    _write_config(config, folder)
+    try:
+        with contextlib.closing(iter_runs(config, progress)) as runs:
+            for run in runs:
+                write_run(run, config, folder)
+    except BaseException as exc:  # Ctrl-C or an error: keep what finished, then stop
+        merge_runs(folder, config, stopped_by=type(exc).__name__)
+        raise
+    return merge_runs(folder, config)
+
+
+def write_run(run: RunResult, config: ExperimentConfig, folder: str | os.PathLike[str]) -> None:
+    """Write one finished run to `folder/runs/`: `run-NNNNNN.parquet` (its rows of the error
+    table) and `run-NNNNNN.json` (what `summarize` needs besides: timing, association
+    counts, OSPA per step, failures with tracebacks), each atomically, the JSON last (its
+    presence marks the run as written)."""
+    import pyarrow.parquet as pq
+
+    parts = Path(folder) / RUNS_FOLDER
+    parts.mkdir(parents=True, exist_ok=True)
+    stem = f"run-{run.run:06d}"
+    table = errors_frame(ExperimentResult(config, (run,)))
+    _atomic(parts / f"{stem}.parquet", lambda path: pq.write_table(table, path))
+    record = {
+        "run": run.run,
+        "step_seconds": run.step_seconds,
+        "n_steps": run.n_steps,
+        "association": run.association,
+        "discarded": run.discarded,
+        "ospa": {name: values.tolist() for name, values in run.ospa.items()},
+        "failures": {name: {"step": f.step, "what": f.what, "traceback": f.traceback}
+                     for name, f in run.failures.items()},
+    }
+    _atomic(parts / f"{stem}.json", lambda path: path.write_text(json.dumps(record)))
+
+
+def read_runs(folder: str | os.PathLike[str]) -> list[RunResult]:
+    """The runs written by `write_run` to `folder/runs/`, in run order."""
+    import pyarrow.parquet as pq
+
+    parts = Path(folder) / RUNS_FOLDER
+    kinds = {name: kind for kind, name in KIND_NAMES.items()}
+    runs = []
+    for path in parts.glob("run-*.json"):
+        record = json.loads(path.read_text())
+        table = pq.read_table(path.with_suffix(".parquet"))
+        columns = {c: table.column(c).to_numpy(zero_copy_only=False) for c in table.column_names}
+        columns["kind"] = np.array([kinds[k] for k in columns["kind"]], dtype=np.int64)
+        of = columns["estimator"]
+        errors = {name: ErrorTable(**{f: columns[f][of == name] for f in ErrorTable.__dataclass_fields__})
+                  for name in record["n_steps"]}
+        runs.append(RunResult(
+            record["run"], errors, record["step_seconds"], record["n_steps"],
+            association={k: tuple(v) for k, v in record["association"].items()},
+            discarded={k: tuple(v) for k, v in record["discarded"].items()},
+            ospa={k: np.array(v, dtype=float) for k, v in record["ospa"].items()},
+            failures={k: Failure(k, record["run"], f["step"], f["what"], f["traceback"])
+                      for k, f in record["failures"].items()},
+        ))
+    runs.sort(key=lambda r: r.run)
+    return runs
+
+
+def merge_runs(folder: str | os.PathLike[str], config: ExperimentConfig | None = None, *,
+               stopped_by: str | None = None) -> Path:
+    """Merge the runs in `folder/runs/` into the results files (`write_results`); remove
+    the parts if every run of the configuration is there. `config` defaults to the
+    folder's config.toml (e.g. to merge a folder whose process was killed)."""
+    folder = Path(folder)
+    if config is None:
+        config = ExperimentConfig.from_dict(_read_toml(folder / "config.toml"))
+    result = ExperimentResult(config, tuple(r for r in read_runs(folder) if 0 <= r.run < config.runs))
+    write_results(result, folder, stopped_by=None if result.complete else stopped_by or "not finished")
+    if result.complete:
+        for part in (folder / RUNS_FOLDER).glob("run-*"):
+            part.unlink()
+        with contextlib.suppress(OSError):  # not empty: files that are not ours stay
+            (folder / RUNS_FOLDER).rmdir()
+    return folder
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+    return tomllib.loads(path.read_text())

@@ -122,13 +122,20 @@ class ReproduceContext:
                                       workers=self.options.workers)
 
     def run(self, config: ExperimentConfig) -> ExperimentResult:
-        """Every run of `config` (progress bar if asked)."""
-        return run_experiment(config, progress=self.options.progress)
+        """Every run of `config` (progress bar if asked); a paper's figures need every
+        estimator-run, so a failed one stops here with its `EstimatorError`."""
+        result = run_experiment(config, progress=self.options.progress)
+        result.raise_failure()
+        return result
 
     def sweep(self, config: ExperimentConfig, key: str, values: Sequence[Any]
               ) -> list[tuple[Any, ExperimentResult]]:
-        """`config` at each value of scenario parameter `key` (common random numbers)."""
-        return run_sweep(config, key, values, progress=self.options.progress)
+        """`config` at each value of scenario parameter `key` (common random numbers); a
+        failed estimator-run stops here, as in `run`."""
+        points = run_sweep(config, key, values, progress=self.options.progress)
+        for _, result in points:
+            result.raise_failure()
+        return points
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], label: str) -> list[Any]:
         """`fn` over `tasks`, results in task order: worker processes unless the backend is
