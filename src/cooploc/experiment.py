@@ -171,6 +171,8 @@ class RunResult:
     association: dict[str, tuple[int, int]] = field(default_factory=dict)
     discarded: dict[str, tuple[int, int]] = field(default_factory=dict)
     ospa: dict[str, np.ndarray] = field(default_factory=dict)  # per step, m (metrics.ospa)
+    # run 0 only: each estimator's estimates for the viewer (`cooploc.view.estimates`)
+    estimates: dict[str, list[Estimate]] | None = None
 
 
 @dataclass(frozen=True)
@@ -245,13 +247,16 @@ def estimate(estimator: Any, recording: Recording | Sequence[Frame], *, smooth: 
     return estimates
 
 
-def run_one(config: ExperimentConfig, run: int) -> RunResult:
-    """Simulate run `run` and process it with every estimator of the config."""
+def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = None) -> RunResult:
+    """Simulate run `run` and process it with every estimator of the config; the estimates
+    are kept in the result for run 0, or as `keep_estimates` says."""
     preset = get_preset(config.scenario)
     names = [e.name for e in config.estimators]
     scenario_rng, estimator_rngs = run_generators(config.seed, run, names)
     recording = preset.generate(scenario_rng, config.scenario_params)
     errors, seconds, steps, association, discarded, ospa = {}, {}, {}, {}, {}, {}
+    kept: dict[str, list[Estimate]] | None = {} if (run == 0 if keep_estimates is None
+                                                    else keep_estimates) else None
     for spec in config.estimators:
         estimator = make_estimator(spec.name, recording.setup, spec.params,
                                    estimator_rngs[spec.name], recording.truth)
@@ -264,7 +269,11 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
         errors[spec.name] = evaluate(recording, estimates)
         ospa[spec.name] = ospa_per_step(recording, estimates)
         seconds[spec.name], steps[spec.name] = timer.seconds, timer.steps
-    return RunResult(run, errors, seconds, steps, association, discarded, ospa)
+        if kept is not None:
+            from cooploc.view.estimates import kept_estimates
+
+            kept[spec.name] = kept_estimates(recording, estimates)
+    return RunResult(run, errors, seconds, steps, association, discarded, ospa, kept)
 
 
 # ----------------------------------------------------------------------------

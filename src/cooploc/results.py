@@ -125,6 +125,9 @@ def write_results(result: ExperimentResult, out: str | os.PathLike[str]) -> Path
     (folder / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     pq.write_table(errors_frame(result), folder / "errors.parquet")
     (folder / "config.toml").write_text(tomli_w.dumps(_toml_ready(result.config.to_dict())))
+    from cooploc.view.estimates import write_estimates
+
+    write_estimates({r.run: r.estimates for r in result.runs if r.estimates}, folder)
     figures = run_figures(result, summary, folder)
     (folder / "report.md").write_text(run_report(summary, figures))
     return folder
