@@ -160,7 +160,7 @@ def test_associations_split_into_right_and_wrong(road):
     data = frame_data(view.recording, view.estimates, view.rmse)
     layer = data.layers["icp-da-lc"]
     assert layer.has_association
-    segments = sum(len(r) + len(w) for r, w in zip(layer.right, layer.wrong, strict=True)) // 3
+    segments = sum(len(r) + len(w) for r, w in zip(layer.right, layer.wrong, strict=True)) // 4
     decided = sum(int((e.info.get("v2f_association", np.zeros(0)) >= 0).sum())
                   for e in view.estimates["icp-da-lc"])
     assert segments == decided > 0
@@ -200,7 +200,7 @@ def test_figure_has_the_expected_traces_and_frames(froehle):
     assert len(fig.frames) == 12 == len(fig.layout.sliders[0].steps)
     moving = fig.frames[0].traces
     assert all(list(f.traces) == list(moving) and len(f.data) == len(moving) for f in fig.frames)
-    assert fig.data[moving[0]].name == "truth"
+    assert [fig.data[i].name for i in moving][-3:] == ["truth", "true features", "shown step"]
     # hover: id, error and NEES of every estimate
     gnss = names.index("gnss-kf")
     custom = np.asarray(fig.frames[4].data[list(moving).index(gnss)].customdata)

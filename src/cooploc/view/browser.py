@@ -78,12 +78,14 @@ def load_page(page: str | os.PathLike[str], budget_ms: int = 20000, timeout: flo
 
 
 def screenshot(page: str | os.PathLike[str], png: str | os.PathLike[str], size: tuple[int, int] = (1400, 860),
-               budget_ms: int = 20000, timeout: float = 180.0) -> Path:
-    """A PNG screenshot of `page` at `size` pixels."""
+               budget_ms: int = 20000, timeout: float = 180.0, fragment: str = "") -> Path:
+    """A PNG screenshot of `page` at `size` pixels; `fragment` is the page's URL fragment
+    (``step=K``, ``x=x0,x1&y=y0,y1``: see `cooploc.view.page`)."""
     out = Path(png).resolve()
     out.parent.mkdir(parents=True, exist_ok=True)
+    url = Path(page).resolve().as_uri() + (f"#{fragment}" if fragment else "")
     _run([f"--virtual-time-budget={budget_ms}", f"--window-size={size[0]},{size[1]}",
-          f"--screenshot={out}", Path(page).resolve().as_uri()], timeout)
+          f"--screenshot={out}", url], timeout)
     if not out.is_file():
         raise RuntimeError(f"chromium wrote no screenshot to {out}")
     return out

@@ -5,7 +5,8 @@ paths of open-plane scenarios, infrastructure, static features), then per frame 
 true vehicles and moving features (red), the step-0 prior (blue), each estimator's
 means with 2-σ ellipses (the first estimator green, as true/prior/estimate are red,
 blue, green in the AoA paper), its feature estimates, the V2V links, and the
-associations it decided (solid: right, dotted: wrong). Right, each estimator's
+associations it decided (measuring vehicle → measured point → the feature it was
+given; solid: right, dotted: wrong). Right, each estimator's
 position RMSE over the vehicles at every step of the run (``errors.parquet``) with a
 cursor at the shown step.
 
@@ -65,11 +66,7 @@ def _bounds(scene: Scene, data: FrameData) -> tuple[list[float], list[float]]:
 
 def _dynamic(data: FrameData, i: int) -> list[dict[str, Any]]:
     """The data of every per-frame trace at frame i, in trace order (see `build_figure`)."""
-    out: list[dict[str, Any]] = [
-        {**_xy(data.truth_xy[i]), "customdata": data.truth_ids[i]},
-    ]
-    if any(len(f) for f in data.feature_xy):
-        out.append({**_xy(data.feature_xy[i]), "customdata": data.feature_ids[i]})
+    out: list[dict[str, Any]] = []
     if len(data.prior_xy):
         first = i == 0
         out.append(_xy(data.prior_xy if first else np.zeros((0, 2))))
@@ -87,6 +84,10 @@ def _dynamic(data: FrameData, i: int) -> list[dict[str, Any]]:
         if layer.has_association:
             out.append(_xy(layer.right[i]))
             out.append(_xy(layer.wrong[i]))
+    # the truth last, on top: a red dot inside each estimate's cross
+    out.append({**_xy(data.truth_xy[i]), "customdata": data.truth_ids[i]})
+    if any(len(f) for f in data.feature_xy):
+        out.append({**_xy(data.feature_xy[i]), "customdata": data.feature_ids[i]})
     if data.rmse:
         top = max((float(np.nanmax(r)) for _, r in data.rmse.values() if len(r)), default=1.0)
         out.append({"x": [data.t[i], data.t[i]], "y": [0.0, top * 1.05]})
@@ -95,14 +96,7 @@ def _dynamic(data: FrameData, i: int) -> list[dict[str, Any]]:
 
 def _dynamic_styles(data: FrameData) -> list[dict[str, Any]]:
     """Name, legend group and style of every per-frame trace, in trace order."""
-    styles: list[dict[str, Any]] = [dict(
-        name="truth", mode="markers", legendgroup="truth",
-        marker={"color": TRUTH_COLOUR, "size": 7, "symbol": "circle"},
-        hovertemplate="true vehicle %{customdata}<extra></extra>")]
-    if any(len(f) for f in data.feature_xy):
-        styles.append(dict(name="true features", mode="markers", legendgroup="truth-features",
-                           marker={"color": TRUTH_COLOUR, "size": 8, "symbol": "diamond-open"},
-                           hovertemplate="true feature %{customdata}<extra></extra>"))
+    styles: list[dict[str, Any]] = []
     if len(data.prior_xy):
         styles.append(dict(name="prior (step 0)", mode="markers", legendgroup="prior",
                            marker={"color": PRIOR_COLOUR, "size": 6}, hoverinfo="skip"))
@@ -115,7 +109,7 @@ def _dynamic_styles(data: FrameData) -> list[dict[str, Any]]:
         colour = estimator_colour(j)
         styles.append(dict(
             name=name, mode="markers", legendgroup=name,
-            marker={"color": colour, "size": 6, "symbol": "x"},
+            marker={"color": colour, "size": 9, "symbol": "x-thin", "line": {"width": 2, "color": colour}},
             hovertemplate=(f"<b>{name}</b><br>vehicle %{{customdata[0]}}<br>error "
                            "%{customdata[1]:.2f} m<br>NEES %{customdata[2]:.2f}<extra></extra>")))
         styles.append(dict(name=f"{name} 2σ", mode="lines", legendgroup=name, showlegend=False,
@@ -135,6 +129,13 @@ def _dynamic_styles(data: FrameData) -> list[dict[str, Any]]:
             styles.append(dict(name=f"{name}: wrong association", mode="lines",
                                legendgroup=f"association {name}", showlegend=False,
                                line={"color": colour, "width": 2, "dash": "dot"}, hoverinfo="skip"))
+    styles.append(dict(name="truth", mode="markers", legendgroup="truth",
+                       marker={"color": TRUTH_COLOUR, "size": 5, "symbol": "circle"},
+                       hovertemplate="true vehicle %{customdata}<extra></extra>"))
+    if any(len(f) for f in data.feature_xy):
+        styles.append(dict(name="true features", mode="markers", legendgroup="truth-features",
+                           marker={"color": TRUTH_COLOUR, "size": 8, "symbol": "diamond-open"},
+                           hovertemplate="true feature %{customdata}<extra></extra>"))
     if data.rmse:
         styles.append(dict(name="shown step", mode="lines", showlegend=False, xaxis="x2", yaxis="y2",
                            line={"color": "black", "width": 1, "dash": "dash"}, hoverinfo="skip"))

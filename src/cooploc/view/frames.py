@@ -11,10 +11,11 @@ estimates into plain arrays per shown step, which both renderers draw:
   consistent estimator). Set-valued estimators (slots, not identities) are scored as
   `metrics.evaluate` scores them: after the optimal assignment to the true vehicles;
 - V2V links of the step between the vehicles' true positions;
-- the association each estimator decided: a segment from where a V2F row puts the
-  feature (the measuring vehicle's true position + the relative position measured)
-  to the true position of the feature it was given, split into right and wrong
-  decisions (the truth's origin of the row).
+- the association each estimator decided: per V2F row a line from the measuring
+  vehicle to where the row puts the feature (the vehicle's true position + the
+  relative position measured) and on to the true position of the feature it was
+  given — straight when right, bent when the row went to another feature — split
+  into right and wrong decisions (the truth's origin of the row).
 
 Size limits (the page must stay responsive; every limit that bites is stated in
 `FrameData.notes`, which the page shows):
@@ -74,11 +75,11 @@ def ellipses(mean: FloatArray, cov: FloatArray, sigmas: float = _SIGMAS,
     return outline.transpose(0, 2, 1).reshape(-1, 2)
 
 
-def _segments(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Segments a_i → b_i as one NaN-separated polyline (3 n, 2)."""
-    if len(a) == 0:
+def _segments(*points: FloatArray) -> FloatArray:
+    """Polylines a_i → b_i (→ c_i …), each (n, 2), as one NaN-separated array ((len + 1) n, 2)."""
+    if len(points[0]) == 0:
         return np.zeros((0, 2))
-    return np.stack([a, b, np.full_like(a, np.nan)], axis=1).reshape(-1, 2)
+    return np.stack([*points, np.full_like(points[0], np.nan)], axis=1).reshape(-1, 2)
 
 
 @dataclass(frozen=True)
@@ -176,7 +177,7 @@ def _budget(recording: Recording, n_estimators: int, n_feature_layers: int
     n_v2f = np.array([len(f.batch("v2f", 2)) for f in frames])
     per_entity = 1 + ELLIPSE_VERTICES + 2
     points = (markers / every * per_entity + 3 * n_links / link_every
-              + 6 * n_v2f * n_estimators / every)
+              + 8 * n_v2f * n_estimators / every)
     stride = max(int(np.ceil(T / MAX_FRAMES)), int(np.ceil(points.sum() / MAX_POINTS)), 1)
     if stride > 1:
         notes.insert(0, f"{T} steps: 1 in {stride} steps is a frame (at most {MAX_FRAMES} frames "
@@ -265,9 +266,11 @@ def _add_layer(layer: Layer, estimate: Estimate, shown_ids: IntArray, all_ids: I
         sensor_at, sensor_ok = lookup_ids(all_ids, v2f.sensor[:len(decided)])
         feature_at, feature_ok = lookup_ids(f_ids, decided)
         rows = (decided >= 0) & sensor_ok & feature_ok & np.isin(v2f.sensor[:len(decided)], shown_vehicles)
-        start = all_xy[sensor_at[rows]] + v2f.z[:len(decided)][rows][:, :2]
+        vehicle = all_xy[sensor_at[rows]]
+        measured = vehicle + v2f.z[:len(decided)][rows][:, :2]
         end = f_xy[feature_at[rows]]
         ok = decided[rows] == origin[:len(decided)][rows]
-        right, wrong = _segments(start[ok], end[ok]), _segments(start[~ok], end[~ok])
+        right = _segments(vehicle[ok], measured[ok], end[ok])
+        wrong = _segments(vehicle[~ok], measured[~ok], end[~ok])
     layer.right.append(right)
     layer.wrong.append(wrong)

@@ -9,7 +9,9 @@ a script in ``<head>``, installed before plotly.js runs, records every uncaught 
 and unhandled promise rejection into ``<pre id="cooploc-errors">``; after the load
 event, ``<pre id="cooploc-status">`` receives JSON with the names of the traces
 plotly drew, the number of animation frames and the milliseconds since navigation
-start. ``page.html#step=K`` opens the page at step K (the last frame at or before it).
+start. ``page.html#step=K`` opens the page at step K (the last frame at or before
+it), ``page.html#x=x0,x1&y=y0,y1`` with the map zoomed to that box (m); both combine
+(``#step=K&x=…``).
 """
 
 from __future__ import annotations
@@ -54,6 +56,11 @@ window.addEventListener('load', function () {
       var name = names.filter(function (k) { return k <= Number(wanted[1]); }).pop();
       Plotly.animate(gd, [String(name === undefined ? names[0] : name)],
                      {mode: 'immediate', frame: {duration: 0, redraw: false}, transition: {duration: 0}});
+    }
+    var zoom = /x=(-?[\d.]+),(-?[\d.]+)&y=(-?[\d.]+),(-?[\d.]+)/.exec(window.location.hash);
+    if (drawn && zoom) {  // page.html#x=x0,x1&y=y0,y1 opens the map zoomed to that box (m)
+      Plotly.relayout(gd, {'xaxis.range': [Number(zoom[1]), Number(zoom[2])],
+                           'yaxis.range': [Number(zoom[3]), Number(zoom[4])]});
     }
     document.getElementById('cooploc-status').textContent = JSON.stringify({
       rendered: drawn, ms: Math.round(performance.now()), frames: frames,
