@@ -181,7 +181,8 @@ def _static_traces(scene: Scene, data: FrameData) -> list[Any]:
             continue
         colour = estimator_colour(list(data.layers).index(name)) if name in data.layers else None
         traces.append(go.Scatter(name=f"{name} RMSE", x=np.asarray(t, np.float32),
-                                 y=np.asarray(r, np.float32), mode="lines", legendgroup=name,
+                                 y=np.asarray(r, np.float32), legendgroup=name,
+                                 mode="lines" if len(t) > 1 else "markers",  # a snapshot: one point
                                  showlegend=False, xaxis="x2", yaxis="y2",
                                  line={"color": colour or estimator_colour(j), "width": 1.5},
                                  hovertemplate=f"{name}: %{{y:.2f}} m at %{{x:.2f}} s<extra></extra>"))

@@ -49,6 +49,7 @@ __all__ = [
     "Layer",
     "ellipses",
     "frame_data",
+    "moving_features",
 ]
 
 MAX_FRAMES = 300
@@ -151,15 +152,22 @@ def _subset(ids: IntArray, every: int) -> IntArray:
     return np.unique(ids)[::every] if every > 1 else np.unique(ids)
 
 
+def moving_features(recording: Recording) -> np.ndarray:
+    """(K,) features that move or come and go (static ones are drawn once, by the scene)."""
+    truth = recording.truth
+    if truth.feature_ids.size == 0:
+        return np.zeros(0, bool)
+    still = np.ptp(truth.feature_states[:, :, :2], axis=0).max(axis=1) == 0.0
+    return ~(truth.feature_present.all(axis=0) & still)
+
+
 def _budget(recording: Recording, n_estimators: int, n_feature_layers: int
             ) -> tuple[int, int, int, list[str]]:
     """(step stride, vehicle and feature id stride, link stride) and the notes they need."""
     truth, frames = recording.truth, recording.frames
     T = len(frames)
     n_vehicles = truth.vehicle_present.sum(axis=1)
-    moving = ~(truth.feature_present.all(axis=0)
-               & (np.ptp(truth.feature_states[:, :, :2], axis=0).max(axis=1) == 0.0)) \
-        if truth.feature_ids.size else np.zeros(0, bool)
+    moving = moving_features(recording)
     n_features = truth.feature_present[:, moving].sum(axis=1) if moving.size else np.zeros(T)
     n_static = int((~moving).sum()) if moving.size else 0
     markers = n_vehicles * (1 + n_estimators) + n_features * (1 + n_feature_layers) \
@@ -196,6 +204,7 @@ def frame_data(recording: Recording, estimates: Mapping[str, Sequence[Estimate]]
     stride, every, link_every, notes = _budget(recording, len(estimates), sum(has_features.values()))
     shown_vehicles = _subset(truth.vehicle_ids, every)
     shown_features = _subset(truth.feature_ids, every)
+    moving = moving_features(recording)
     steps = np.arange(0, len(frames), stride)
 
     truth_ids, truth_xy, feature_ids, feature_xy, links = [], [], [], [], []
@@ -211,7 +220,7 @@ def frame_data(recording: Recording, estimates: Mapping[str, Sequence[Estimate]]
         f_ids, f_xy = truth.feature_ids[fon], truth.feature_states[k, fon][:, fpos]
         truth_ids.append(ids)
         truth_xy.append(xy)
-        fshow = np.isin(f_ids, shown_features)
+        fshow = np.isin(f_ids, shown_features) & moving[fon]
         feature_ids.append(f_ids[fshow])
         feature_xy.append(f_xy[fshow])
         edges = frames[k].links[::link_every]

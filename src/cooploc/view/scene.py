@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from cooploc.types import FloatArray, IntArray, Recording
+from cooploc.view.frames import moving_features
 
 __all__ = ["Scene", "scene"]
 
@@ -76,11 +77,8 @@ def polylines(lines: list[np.ndarray]) -> FloatArray:
 
 def _static_features(recording: Recording) -> tuple[IntArray, FloatArray]:
     truth = recording.truth
-    if truth.feature_ids.size == 0:
-        return np.zeros(0, np.int64), np.zeros((0, 2))
-    pos = truth.feature_states[:, :, :2]
-    fixed = truth.feature_present.all(axis=0) & (np.ptp(pos, axis=0).max(axis=1) == 0.0)
-    return truth.feature_ids[fixed], pos[0, fixed]
+    fixed = ~moving_features(recording)
+    return truth.feature_ids[fixed], truth.feature_states[0, fixed][:, :2]
 
 
 def _sumo_roads(params: Any) -> tuple[FloatArray, FloatArray, FloatArray]:
