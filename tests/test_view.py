@@ -165,6 +165,9 @@ def test_associations_split_into_right_and_wrong(road):
                   for e in view.estimates["icp-da-lc"])
     assert segments == decided > 0
     assert any(len(link) for link in data.links)
+    # every V2F row is a detection line: measuring vehicle → measured point
+    assert sum(len(d) for d in data.detections) // 3 == sum(len(f.batch("v2f", 2))
+                                                             for f in view.recording.frames)
 
 
 def test_size_limits_thin_the_frames_and_say_so(froehle, monkeypatch):
@@ -194,7 +197,8 @@ def _figure(folder, run=0):
 def test_figure_has_the_expected_traces_and_frames(froehle):
     fig, data = _figure(froehle)
     names = [t.name for t in fig.data]
-    for name in ("true paths", "truth", "true features", "prior (step 0)", "gnss-kf", "gnss-kf 2σ",
+    for name in ("true paths", "truth", "true features", "prior (step 0)", "V2F detections",
+                 "gnss-kf", "gnss-kf 2σ",
                  "oracle-kf", "oracle-kf features", "gnss-kf RMSE", "oracle-kf RMSE", "shown step"):
         assert name in names
     assert len(fig.frames) == 12 == len(fig.layout.sliders[0].steps)
@@ -239,6 +243,16 @@ def test_gif_animation(froehle, tmp_path):
     path = write_animation(froehle, 0, tmp_path / "run.gif", fps=4)
     with Image.open(path) as gif:
         assert gif.n_frames == 12
+
+
+def test_mp4_where_ffmpeg_exists_else_a_clear_error(froehle, tmp_path):
+    from matplotlib import animation
+
+    if animation.writers.is_available("ffmpeg"):
+        assert write_animation(froehle, 0, tmp_path / "run.mp4").stat().st_size > 0
+    else:
+        with pytest.raises(InvalidInputError, match="needs ffmpeg"):
+            write_animation(froehle, 0, tmp_path / "run.mp4")
 
 
 def test_animation_needs_a_known_suffix(froehle, tmp_path):

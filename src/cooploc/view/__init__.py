@@ -20,13 +20,18 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from cooploc.view.data import RunView
 
 __all__ = ["VIEW_FILE", "link_in_report", "write_animation", "write_view"]
 
 VIEW_FILE = "view.html"
 
 
-def _meta(view) -> tuple[str, list[str]]:  # (title, lines under it)
+def _meta(view: RunView) -> tuple[str, list[str]]:
+    """The page's title and the lines under it."""
     cfg = view.config
     title = f"{cfg.scenario}: run {view.run} of {cfg.runs}, seed {cfg.seed}"
     lines = [view.recording.setup.description,

@@ -79,6 +79,7 @@ def animate(scene: Scene, data: FrameData, title: str, path: str | os.PathLike[s
     prior, = ax.plot([], [], "o", color=PRIOR_COLOUR, ms=3, label="prior (step 0)")
     prior_ell, = ax.plot([], [], color=PRIOR_COLOUR, lw=0.7)
     links, = ax.plot([], [], color="0.5", lw=0.5, alpha=0.4)
+    detections, = ax.plot([], [], color=TRUTH_COLOUR, lw=0.5, ls=":", alpha=0.5)
     layers = []
     for j, (name, layer) in enumerate(data.layers.items()):
         colour = estimator_colour(j)
@@ -111,6 +112,7 @@ def animate(scene: Scene, data: FrameData, title: str, path: str | os.PathLike[s
         prior.set_data(*(data.prior_xy if i == 0 else _EMPTY).T)
         prior_ell.set_data(*(data.prior_ellipses if i == 0 else _EMPTY).T)
         links.set_data(*data.links[i].reshape(-1, 2).T)
+        detections.set_data(*data.detections[i].reshape(-1, 2).T)
         for layer, (marks, ell, fmarks, fell, right, wrong) in layers:
             marks.set_data(*layer.xy[i].reshape(-1, 2).T)
             ell.set_data(*layer.ellipses[i].reshape(-1, 2).T)

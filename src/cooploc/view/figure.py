@@ -2,13 +2,14 @@
 
 Left, the map (equal axes, metres): the static `Scene` (roads, junctions, faint true
 paths of open-plane scenarios, infrastructure, static features), then per frame the
-true vehicles and moving features (red), the step-0 prior (blue), each estimator's
-means with 2-σ ellipses (the first estimator green, as true/prior/estimate are red,
-blue, green in the AoA paper), its feature estimates, the V2V links, and the
+true vehicles and moving features (red), the step-0 prior (blue), the V2V links and
+V2F detections of the step (detections off until clicked in the legend), each
+estimator's means with 2-σ ellipses (the first estimator green, as true / prior /
+estimate are red, blue, green in the AoA paper), its feature estimates, and the
 associations it decided (measuring vehicle → measured point → the feature it was
-given; solid: right, dotted: wrong). Right, each estimator's
-position RMSE over the vehicles at every step of the run (``errors.parquet``) with a
-cursor at the shown step.
+given; solid: right, dotted: wrong). Right, each estimator's position RMSE over the
+vehicles at every step of the run (``errors.parquet``) with a cursor at the shown
+step.
 
 Plotly frames carry only the traces that change; the slider and the play/pause
 buttons step through them without redrawing the scene. Every estimator is one legend
@@ -73,6 +74,8 @@ def _dynamic(data: FrameData, i: int) -> list[dict[str, Any]]:
         out.append(_xy(data.prior_ellipses if first else np.zeros((0, 2))))
     if any(len(link) for link in data.links):
         out.append(_xy(data.links[i]))
+    if any(len(d) for d in data.detections):
+        out.append(_xy(data.detections[i]))
     for layer in data.layers.values():
         custom = np.stack([layer.ids[i], np.round(layer.error[i], 3), np.round(layer.nees[i], 3)],
                           axis=1) if len(layer.ids[i]) else np.zeros((0, 3))
@@ -105,6 +108,11 @@ def _dynamic_styles(data: FrameData) -> list[dict[str, Any]]:
     if any(len(link) for link in data.links):
         styles.append(dict(name="V2V links", mode="lines", legendgroup="links",
                            line={"color": "rgba(120,120,120,0.35)", "width": 1}, hoverinfo="skip"))
+    if any(len(d) for d in data.detections):
+        # off at first (click the legend): with many detections they hide the map
+        styles.append(dict(name="V2F detections", mode="lines", legendgroup="detections",
+                           visible="legendonly", hoverinfo="skip",
+                           line={"color": "rgba(214,39,40,0.5)", "width": 1, "dash": "dot"}))
     for j, (name, layer) in enumerate(data.layers.items()):
         colour = estimator_colour(j)
         styles.append(dict(

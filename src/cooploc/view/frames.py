@@ -10,7 +10,8 @@ estimates into plain arrays per shown step, which both renderers draw:
   the position error ‖p̂ − p‖ (m) and the position NEES eᵀ P⁻¹ e (χ²(2) for a
   consistent estimator). Set-valued estimators (slots, not identities) are scored as
   `metrics.evaluate` scores them: after the optimal assignment to the true vehicles;
-- V2V links of the step between the vehicles' true positions;
+- V2V links of the step between the vehicles' true positions, and the V2F detections
+  (a line from the measuring vehicle to where the row puts the feature);
 - the association each estimator decided: per V2F row a line from the measuring
   vehicle to where the row puts the feature (the vehicle's true position + the
   relative position measured) and on to the true position of the feature it was
@@ -24,7 +25,8 @@ Size limits (the page must stay responsive; every limit that bites is stated in
 - at most `MAX_MARKERS_PER_FRAME` markers (vehicles and features, truth and every
   estimator) in a frame: above, every m-th vehicle and feature by id is shown (the
   same entities in every frame);
-- at most `MAX_LINKS_PER_FRAME` links per frame (every l-th above);
+- at most `MAX_LINKS_PER_FRAME` V2V links and as many V2F detections per frame
+  (every l-th above);
 - at most `MAX_POINTS` drawn vertices over all frames (markers, ellipse vertices,
   link and association ends): above, the step stride grows.
 """
@@ -106,9 +108,10 @@ class FrameData:
     """Everything that changes per frame, over the shown steps.
 
     `steps` (F,) and `t` (F,) of the shown frames; `truth_*` and `feature_*` the true
-    vehicles and moving features per frame; `prior_*` the step-0 prior; `links` per
-    frame; `layers` per estimator; `rmse[name] = (t, rmse)` of every step (not
-    decimated); `notes` the size limits that applied.
+    vehicles and moving features per frame; `prior_*` the step-0 prior; `links` (V2V)
+    and `detections` (V2F: measuring vehicle → measured point) per frame; `layers` per
+    estimator; `rmse[name] = (t, rmse)` of every step (not decimated); `notes` the size
+    limits that applied.
     """
 
     steps: IntArray
@@ -120,6 +123,7 @@ class FrameData:
     prior_xy: FloatArray
     prior_ellipses: FloatArray
     links: list[FloatArray]
+    detections: list[FloatArray]
     layers: dict[str, Layer]
     rmse: dict[str, tuple[FloatArray, FloatArray]]
     notes: list[str]
@@ -162,8 +166,8 @@ def moving_features(recording: Recording) -> np.ndarray:
 
 
 def _budget(recording: Recording, n_estimators: int, n_feature_layers: int
-            ) -> tuple[int, int, int, list[str]]:
-    """(step stride, vehicle and feature id stride, link stride) and the notes they need."""
+            ) -> tuple[int, int, tuple[int, int], list[str]]:
+    """(step stride, vehicle and feature id stride, V2V and V2F strides) and the notes they need."""
     truth, frames = recording.truth, recording.frames
     T = len(frames)
     n_vehicles = truth.vehicle_present.sum(axis=1)
@@ -183,14 +187,18 @@ def _budget(recording: Recording, n_estimators: int, n_feature_layers: int
         notes.append(f"up to {int(n_links.max())} V2V links in a step, more than "
                      f"{MAX_LINKS_PER_FRAME}: 1 in {link_every} links is drawn")
     n_v2f = np.array([len(f.batch("v2f", 2)) for f in frames])
+    v2f_every = int(np.ceil(n_v2f.max() / MAX_LINKS_PER_FRAME)) if T and n_v2f.max() else 1
+    if v2f_every > 1:
+        notes.append(f"up to {int(n_v2f.max())} V2F detections in a step, more than "
+                     f"{MAX_LINKS_PER_FRAME}: 1 in {v2f_every} is drawn")
     per_entity = 1 + ELLIPSE_VERTICES + 2
-    points = (markers / every * per_entity + 3 * n_links / link_every
+    points = (markers / every * per_entity + 3 * n_links / link_every + 3 * n_v2f / v2f_every
               + 8 * n_v2f * n_estimators / every)
     stride = max(int(np.ceil(T / MAX_FRAMES)), int(np.ceil(points.sum() / MAX_POINTS)), 1)
     if stride > 1:
         notes.insert(0, f"{T} steps: 1 in {stride} steps is a frame (at most {MAX_FRAMES} frames "
                         f"and {MAX_POINTS:,} drawn points)")
-    return stride, every, link_every, notes
+    return stride, every, (link_every, v2f_every), notes
 
 
 def frame_data(recording: Recording, estimates: Mapping[str, Sequence[Estimate]],
@@ -201,13 +209,14 @@ def frame_data(recording: Recording, estimates: Mapping[str, Sequence[Estimate]]
     fpos = list(setup.feature_layout.position) if setup.feature_layout is not None else vpos
     has_features = {n: any(e.features is not None and len(e.features) for e in est)
                     for n, est in estimates.items()}
-    stride, every, link_every, notes = _budget(recording, len(estimates), sum(has_features.values()))
+    stride, every, (link_every, v2f_every), notes = _budget(recording, len(estimates),
+                                                            sum(has_features.values()))
     shown_vehicles = _subset(truth.vehicle_ids, every)
     shown_features = _subset(truth.feature_ids, every)
     moving = moving_features(recording)
     steps = np.arange(0, len(frames), stride)
 
-    truth_ids, truth_xy, feature_ids, feature_xy, links = [], [], [], [], []
+    truth_ids, truth_xy, feature_ids, feature_xy, links, detections = [], [], [], [], [], []
     layers = {n: Layer(has_features=has_features[n],
                        has_association=any("v2f_association" in e.info for e in est))
               for n, est in estimates.items()}
@@ -228,6 +237,10 @@ def frame_data(recording: Recording, estimates: Mapping[str, Sequence[Estimate]]
         b, _ = lookup_ids(all_ids, edges[:, 1])
         links.append(_segments(all_xy[a], all_xy[b]))
         v2f = frames[k].batch("v2f", 2)
+        rows = np.flatnonzero(np.isin(v2f.sensor, shown_vehicles))[::v2f_every]
+        at, found = lookup_ids(all_ids, v2f.sensor[rows])
+        sensor_xy = all_xy[at[found]]
+        detections.append(_segments(sensor_xy, sensor_xy + v2f.z[rows[found]][:, :2]))
         origin = truth.origin[k].get("v2f", np.zeros(0, np.int64))
         for name, est in estimates.items():
             _add_layer(layers[name], est[k], ids, all_ids, all_xy, f_ids, f_xy, shown_vehicles,
@@ -238,7 +251,7 @@ def frame_data(recording: Recording, estimates: Mapping[str, Sequence[Estimate]]
     prior_xy, prior_cov = _position_block(prior, vpos) if len(prior) else (np.zeros((0, 2)),
                                                                            np.zeros((0, 2, 2)))
     return FrameData(steps, np.array([frames[k].t for k in steps]), truth_ids, truth_xy, feature_ids,
-                     feature_xy, prior_xy, ellipses(prior_xy, prior_cov), links, layers,
+                     feature_xy, prior_xy, ellipses(prior_xy, prior_cov), links, detections, layers,
                      dict(rmse or {}), notes)
 
 
