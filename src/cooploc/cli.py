@@ -173,7 +173,7 @@ def view_cmd(
     results: Annotated[Path, typer.Argument(help="Results folder of `cooploc run`.")],
     run: Annotated[int, typer.Option(help="Which Monte Carlo run to show.")] = 0,
     out: Annotated[Path | None, typer.Option(
-        help="Output file [default: RESULTS/view.html, or RESULTS/view.gif with --gif].")] = None,
+        help="Output file \\[default: RESULTS/view.html, or RESULTS/view.gif with --gif].")] = None,
     gif: Annotated[bool, typer.Option("--gif", help="Write an animation instead: .gif, or .mp4 "
                                                     "with --out X.mp4 where ffmpeg exists.")] = False,
 ) -> None:
