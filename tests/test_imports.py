@@ -17,7 +17,8 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 #: imported only where used: each costs 0.1–1 s at start-up
-HEAVY = ("numba", "scipy", "gtsam", "matplotlib", "pyarrow", "stonesoup", "dask", "sumolib", "traci")
+HEAVY = ("numba", "scipy", "gtsam", "matplotlib", "pyarrow", "stonesoup", "dask", "sumolib", "traci",
+         "plotly")
 
 
 def _module_name(path: Path) -> str:

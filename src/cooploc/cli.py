@@ -1,4 +1,4 @@
-"""The `cooploc` command line (DESIGN §6): list, run, reproduce.
+"""The `cooploc` command line (DESIGN §6): list, run, view, reproduce.
 
 The CLI only parses and calls `cooploc.experiment` / `cooploc.reproduce`. Every
 mistake a user can make on the command line (unknown scenario, estimator or key, a
@@ -108,6 +108,7 @@ def run(
     workers: Annotated[int | None, typer.Option(help="Worker processes [default: all cores].")] = None,
     config: Annotated[Path | None, typer.Option(help="Rerun a config.toml of a results folder.")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+    view: Annotated[bool, typer.Option("--view", help="Also write view.html (see `cooploc view`).")] = False,
 ) -> None:
     """Run estimators on a scenario for N Monte Carlo runs and write a results folder."""
     from cooploc.experiment import ExperimentConfig
@@ -139,6 +140,10 @@ def run(
     except KeyboardInterrupt:
         _print_summary(folder)
         raise typer.Exit(130) from None
+    if view:
+        from cooploc.view import link_in_report, write_view
+
+        link_in_report(folder, write_view(folder).name)
     _print_summary(folder)
 
 
@@ -169,6 +174,23 @@ def _print_summary(folder: Path) -> None:
     for note in run_notes(summary):  # failed / diverged estimator-runs, an unfinished experiment
         console.print(f"[bold red]![/] {escape(note)}", highlight=False)
     console.print(f"results: {folder}/ (summary.json, errors.parquet, config.toml, report.md, figures)")
+
+
+@app.command("view")
+@_clean_errors
+def view_cmd(
+    results: Annotated[Path, typer.Argument(help="Results folder of `cooploc run`.")],
+    run: Annotated[int, typer.Option(help="Which Monte Carlo run to show.")] = 0,
+    out: Annotated[Path | None, typer.Option(
+        help="Output file \\[default: RESULTS/view.html, or RESULTS/view.gif with --gif].")] = None,
+    gif: Annotated[bool, typer.Option("--gif", help="Write an animation instead: .gif, or .mp4 "
+                                                    "with --out X.mp4 where ffmpeg exists.")] = False,
+) -> None:
+    """Write one run of a results folder as an interactive, offline HTML page (or an animation)."""
+    from cooploc.view import write_animation, write_view
+
+    path = write_animation(results, run, out) if gif else write_view(results, run, out)
+    Console().print(f"{'animation' if gif else 'view'}: {path} ({path.stat().st_size / 1e6:.1f} MB)")
 
 
 @app.command()

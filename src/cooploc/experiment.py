@@ -229,6 +229,8 @@ class RunResult:
     discarded: dict[str, tuple[int, int]] = field(default_factory=dict)
     ospa: dict[str, np.ndarray] = field(default_factory=dict)  # per step, m (metrics.ospa)
     failures: dict[str, Failure] = field(default_factory=dict)
+    # run 0 only: each estimator's estimates for the viewer (`cooploc.view.estimates`)
+    estimates: dict[str, list[Estimate]] | None = None
 
 
 @dataclass(frozen=True)
@@ -373,11 +375,12 @@ def _check_finite(name: str, estimate_k: Estimate, step: int) -> None:
                 raise EstimatorError(name, f"non-finite estimate ({part}.{array})", step=step)
 
 
-def run_one(config: ExperimentConfig, run: int) -> RunResult:
+def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = None) -> RunResult:
     """Simulate run `run` and process it with every estimator of the config.
 
     An estimator that fails (`EstimatorError`) is recorded in `RunResult.failures`; the
-    other estimators go on.
+    other estimators go on. The estimates are kept in the result (for the viewer) for
+    run 0, or as `keep_estimates` says.
     """
     preset = get_preset(config.scenario)
     names = [e.name for e in config.estimators]
@@ -385,6 +388,8 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
     recording = preset.generate(scenario_rng, config.scenario_params)
     errors, seconds, steps, association, discarded, ospa = {}, {}, {}, {}, {}, {}
     failures = {}
+    kept: dict[str, list[Estimate]] | None = {} if (run == 0 if keep_estimates is None
+                                                    else keep_estimates) else None
     for spec in config.estimators:
         estimator = make_estimator(spec.name, recording.setup, spec.params,
                                    estimator_rngs[spec.name], recording.truth)
@@ -403,7 +408,12 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
             errors[spec.name] = evaluate(recording, estimates)
             ospa[spec.name] = ospa_per_step(recording, estimates)
         seconds[spec.name], steps[spec.name] = timer.seconds, timer.steps
-    return RunResult(run, errors, seconds, steps, association, discarded, ospa, failures=failures)
+        if kept is not None:
+            from cooploc.view.estimates import kept_estimates
+
+            kept[spec.name] = kept_estimates(recording, estimates)
+    return RunResult(run, errors, seconds, steps, association, discarded, ospa, failures=failures,
+                     estimates=kept)
 
 
 # ----------------------------------------------------------------------------

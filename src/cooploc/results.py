@@ -201,6 +201,10 @@ def write_results(result: ExperimentResult, out: str | os.PathLike[str], *,
     _atomic(folder / "errors.parquet", lambda path: pq.write_table(errors_frame(result), path))
     _write_config(result.config, folder)
     _write_failures_log(result.failures(), folder / FAILURES_LOG)
+    if any(r.estimates for r in result.runs):  # the Python API path; run_to_folder writes run 0's
+        from cooploc.view.estimates import write_estimates
+
+        write_estimates({r.run: r.estimates for r in result.runs if r.estimates}, folder)
     figures = run_figures(result, summary, folder)
     (folder / "report.md").write_text(run_report(summary, figures))
     _atomic(folder / "summary.json", lambda path: path.write_text(text))
@@ -252,7 +256,9 @@ def run_to_folder(config: ExperimentConfig, out: str | os.PathLike[str], *,
     parts = folder / RUNS_FOLDER
     parts.mkdir(parents=True, exist_ok=True)
     # what an earlier experiment left here would be taken for this one's until the merge
-    for stale in [*parts.glob("run-*"), folder / "summary.json"]:
+    from cooploc.view.estimates import ESTIMATES_FILE
+
+    for stale in [*parts.glob("run-*"), folder / "summary.json", folder / ESTIMATES_FILE]:
         stale.unlink(missing_ok=True)
     _write_config(config, folder)
     try:
@@ -287,6 +293,10 @@ def write_run(run: RunResult, config: ExperimentConfig, folder: str | os.PathLik
         "failures": {name: {"step": f.step, "what": f.what, "traceback": f.traceback}
                      for name, f in run.failures.items()},
     }
+    if run.estimates:  # run 0's estimates, for the viewer: straight to the folder
+        from cooploc.view.estimates import write_estimates
+
+        write_estimates({run.run: run.estimates}, folder)
     _atomic(parts / f"{stem}.json", lambda path: path.write_text(json.dumps(record)))
 
 

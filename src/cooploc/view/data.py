@@ -1,0 +1,110 @@
+"""What the viewer reads from a results folder, and what it regenerates.
+
+A results folder of `cooploc run` holds ``config.toml`` (scenario, parameters, seed,
+estimators), ``errors.parquet`` and ``estimates.parquet`` (run 0's estimates). The
+recording is not stored: `regenerate(config, run)` simulates it again, exactly, from
+the seed (`cooploc.experiment.run_generators`, then the preset's `generate`; SUMO
+traffic comes from its cache or is simulated again, deterministically). Storing it
+would cost more than the rest of the folder (every measurement of every step) for no
+information. A run whose estimates were not kept (``--run N`` with N > 0) is run
+again with the same generators, so its numbers equal those of the original run.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cooploc.errors import ConfigError, InvalidInputError
+from cooploc.types import Estimate, FloatArray, Recording
+
+__all__ = ["RunView", "load_run", "read_config", "regenerate"]
+
+
+@dataclass(frozen=True)
+class RunView:
+    """One run of a results folder: its config, preset, recording, estimates and RMSE."""
+
+    folder: Path
+    run: int
+    config: Any  # cooploc.experiment.ExperimentConfig
+    preset: Any  # cooploc.registry.Preset
+    recording: Recording
+    estimates: dict[str, list[Estimate]]
+    rmse: dict[str, tuple[FloatArray, FloatArray]]
+    recomputed: bool
+
+
+def read_config(folder: Path) -> Any:
+    """The `ExperimentConfig` of a results folder (its ``config.toml``)."""
+    from cooploc.experiment import ExperimentConfig
+
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+    path = folder / "config.toml"
+    if not path.is_file():
+        raise InvalidInputError(f"{folder}: not a results folder of `cooploc run` (no config.toml)")
+    try:
+        return ExperimentConfig.from_dict(tomllib.loads(path.read_text()))
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path} is not valid TOML: {exc}") from None
+
+
+def regenerate(config: Any, run: int) -> Recording:
+    """The recording of run `run`, simulated again from the config's seed (bit for bit)."""
+    from cooploc.experiment import run_generators
+    from cooploc.registry import get_preset
+
+    scenario_rng, _ = run_generators(config.seed, run, [e.name for e in config.estimators])
+    return get_preset(config.scenario).generate(scenario_rng, config.scenario_params)
+
+
+def _rmse_over_time(folder: Path, run: int) -> dict[str, tuple[FloatArray, FloatArray]]:
+    """Per estimator, (t, RMSE over the vehicles) of every step of `run` from errors.parquet."""
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    path = folder / "errors.parquet"
+    if not path.is_file():
+        return {}
+    table = pq.read_table(path, columns=["run", "t", "estimator", "kind", "err_pos"],
+                          filters=[("run", "=", run), ("kind", "=", "vehicle")])
+    out = {}
+    for name in pc.unique(table["estimator"]).to_pylist():
+        part = table.filter(pc.equal(table["estimator"], name))
+        t_all, err = part["t"].to_numpy(), part["err_pos"].to_numpy()
+        t, inverse = np.unique(t_all, return_inverse=True)
+        sq = np.bincount(inverse, weights=err**2, minlength=t.size)
+        count = np.bincount(inverse, minlength=t.size)
+        out[name] = (t, np.sqrt(sq / np.maximum(count, 1)))
+    return out
+
+
+def load_run(folder: str | os.PathLike[str], run: int = 0) -> RunView:
+    """Config, regenerated recording, estimates (kept, or run again) and RMSE of one run."""
+    from cooploc.experiment import run_one
+    from cooploc.registry import get_preset
+    from cooploc.view.estimates import read_estimates
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InvalidInputError(f"results folder {str(folder)!r} does not exist")
+    config = read_config(folder)
+    if isinstance(run, bool) or run < 0 or run >= config.runs:
+        raise InvalidInputError(f"--run must lie in [0, {config.runs - 1}] for {folder} "
+                                f"({config.runs} runs), got {run}")
+    recording = regenerate(config, run)
+    estimates = read_estimates(folder, run, len(recording.frames), recording.setup.vehicle_layout.dim)
+    recomputed = estimates is None
+    if estimates is None:
+        estimates = run_one(config, run, keep_estimates=True).estimates or {}
+    names = [e.name for e in config.estimators if e.name in estimates]
+    return RunView(folder, run, config, get_preset(config.scenario), recording,
+                   {n: estimates[n] for n in names}, _rmse_over_time(folder, run), recomputed)
