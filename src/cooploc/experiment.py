@@ -40,7 +40,7 @@ from cooploc._version import __version__
 from cooploc.errors import ConfigError
 from cooploc.metrics import ErrorTable, evaluate, ospa_per_step, score_association
 from cooploc.params import Params
-from cooploc.registry import get_estimator, get_preset, make_estimator
+from cooploc.registry import get_estimator, get_preset, make_estimator, unused_kinds
 from cooploc.types import Estimate, Frame, Recording
 
 __all__ = [
@@ -171,6 +171,7 @@ class RunResult:
     association: dict[str, tuple[int, int]] = field(default_factory=dict)
     discarded: dict[str, tuple[int, int]] = field(default_factory=dict)
     ospa: dict[str, np.ndarray] = field(default_factory=dict)  # per step, m (metrics.ospa)
+    unused_kinds: dict[str, tuple[str, ...]] = field(default_factory=dict)  # registry.unused_kinds
 
 
 @dataclass(frozen=True)
@@ -251,10 +252,11 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
     names = [e.name for e in config.estimators]
     scenario_rng, estimator_rngs = run_generators(config.seed, run, names)
     recording = preset.generate(scenario_rng, config.scenario_params)
-    errors, seconds, steps, association, discarded, ospa = {}, {}, {}, {}, {}, {}
+    errors, seconds, steps, association, discarded, ospa, unused = {}, {}, {}, {}, {}, {}, {}
     for spec in config.estimators:
         estimator = make_estimator(spec.name, recording.setup, spec.params,
                                    estimator_rngs[spec.name], recording.truth)
+        unused[spec.name] = unused_kinds(get_estimator(spec.name), recording.setup) or ()
         timer = StepTimer()
         estimates, score = score_association(recording, estimate(estimator, recording, timer=timer))
         if score is not None and score.total:
@@ -264,7 +266,7 @@ def run_one(config: ExperimentConfig, run: int) -> RunResult:
         errors[spec.name] = evaluate(recording, estimates)
         ospa[spec.name] = ospa_per_step(recording, estimates)
         seconds[spec.name], steps[spec.name] = timer.seconds, timer.steps
-    return RunResult(run, errors, seconds, steps, association, discarded, ospa)
+    return RunResult(run, errors, seconds, steps, association, discarded, ospa, unused)
 
 
 # ----------------------------------------------------------------------------

@@ -237,6 +237,8 @@ def run_report(summary: Mapping[str, Any], figures: Sequence[tuple[str, str]]) -
                      + f" | {format_number(e['vehicle_rmse_all'])} | {format_number(e['feature_rmse_all'])}"
                      f" | {format_number(e['steps_per_second'], 4)} |")
     lines.append("")
+    lines += [f"{name} did not use this scenario's {', '.join(e['unused_kinds'])} measurements.\n"
+              for name, e in est.items() if e.get("unused_kinds")]
     if any(e.get("total_rmse") is not None for e in est.values()):  # Zhang 2016 eq. (20), OSPA
         lines += ["| estimator | total error, eq. (20) [m] | OSPA (c = 10 m, p = 2) [m] |", "|---|---|---|"]
         lines += [f"| {name} | {format_number(e.get('total_rmse'))} | {format_number(e.get('ospa'))} |"

@@ -79,6 +79,10 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
                                                      run[vehicles])),
             "ospa": _finite_or_none(float(np.mean(np.concatenate(ospa_steps))))
             if ospa_steps else None,
+            # consistency (metrics.nees_band) and what the estimator left aside (registry.unused_kinds)
+            "nees_mean": _finite_or_none(float(np.nanmean(table.nees[vehicles])))
+            if np.isfinite(table.nees[vehicles]).any() else None,
+            "unused_kinds": sorted({k for r in result.runs for k in r.unused_kinds.get(spec.name, ())}),
         }
     return out
 
@@ -110,6 +114,7 @@ def errors_frame(result: ExperimentResult):  # -> pyarrow.Table
             "err_pos": pa.array(table.err_pos, pa.float64()),
             "err_vel": pa.array(table.err_vel, pa.float64(), from_pandas=True),
             "err_heading": pa.array(table.err_heading, pa.float64(), from_pandas=True),
+            "nees": pa.array(table.nees, pa.float64(), from_pandas=True),
         }))
     return pa.concat_tables(parts)
 

@@ -19,6 +19,7 @@ GNSS fix (`birth_beliefs`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
@@ -48,6 +49,10 @@ class Estimator(Protocol):
     #: measurement kinds (`Setup.sensors` keys) without which the method cannot run;
     #: `make_estimator` refuses a scenario that lacks one with a `ConfigError`
     required_sensors: ClassVar[tuple[str, ...]]
+    #: measurement kind → the sensor models (`SensorModel.name`) of that kind the method
+    #: can read; `make_estimator` refuses a scenario of which it can use nothing
+    #: (`cooploc.registry.unused_kinds`)
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]]
 
     def step(self, frame: Frame) -> Estimate: ...
 

@@ -58,6 +58,7 @@ for merging.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -194,6 +195,8 @@ class GMPHD:
     Params: ClassVar[type[Params]] = GMPHDParams
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "zhang2016-cv"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("anonymous-position", "gnss-position")}
 
     def __init__(self, setup: Setup, params: GMPHDParams, rng: np.random.Generator) -> None:
         self.setup = setup

@@ -24,6 +24,7 @@ a step costs O(n dx³) in NumPy calls whose number does not grow with n.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -52,6 +53,8 @@ class GnssKF:
     Params: ClassVar[type[Params]] = GnssKFParams
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "froehle2018"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "odometry": ("odometry",)}
 
     def __init__(self, setup: Setup, params: GnssKFParams, rng: np.random.Generator) -> None:
         self.setup = setup

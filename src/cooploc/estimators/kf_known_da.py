@@ -16,6 +16,7 @@ Complexity: that of `gnss-kf`, O(n dx³) per step in a fixed number of NumPy cal
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -44,6 +45,8 @@ class KFKnownDA:
     Params: ClassVar[type[Params]] = KFKnownDAParams
     needs_truth: ClassVar[bool] = True
     default_preset: ClassVar[str] = "zhang2016-cv"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("anonymous-position", "gnss-position"), "odometry": ("odometry",)}
 
     def __init__(self, setup: Setup, params: KFKnownDAParams, rng: np.random.Generator, *,
                  truth: AssociationTruth) -> None:

@@ -21,6 +21,7 @@ stacked. Cost O(D³ + D² m) for D = 4(S + K) states and m measurement component
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -64,6 +65,8 @@ class OracleKF:
     Params: ClassVar[type[Params]] = OracleKFParams
     needs_truth: ClassVar[bool] = True
     default_preset: ClassVar[str] = "froehle2018"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "v2f": ("relative-position",)}
 
     def __init__(self, setup: Setup, params: OracleKFParams, rng: np.random.Generator, *,
                  truth: AssociationTruth) -> None:

@@ -73,6 +73,7 @@ Choices the paper leaves open (DESIGN note):
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -152,6 +153,8 @@ class RsuBP:
     Params: ClassVar[type[Params]] = RsuBPParams
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "froehle2018"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "v2f": ("relative-position",)}
 
     def __init__(self, setup: Setup, params: RsuBPParams, rng: np.random.Generator) -> None:
         self.setup, self.params, self.rng = setup, params, rng

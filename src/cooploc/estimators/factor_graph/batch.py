@@ -31,6 +31,7 @@ reference the tests check ours against. Damping follows GTSAM's default (λI, λ
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -88,6 +89,8 @@ class _BatchGraph:
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "gulati-2v"
     required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "odometry")
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "odometry": ("odometry",), "radar": ("infrastructure-radar",)}
 
     def __init__(self, setup: Setup, params: FactorGraphParams, rng: np.random.Generator) -> None:
         self.setup, self.params = setup, params

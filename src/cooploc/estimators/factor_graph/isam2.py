@@ -20,6 +20,7 @@ bounds the GIL-bound Python cost of the CustomFactors. Time per step:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -65,6 +66,8 @@ class FgIsam2:
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "gulati-2v"
     required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "odometry")
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "odometry": ("odometry",), "radar": ("infrastructure-radar",)}
 
     def __init__(self, setup: Setup, params: ISAM2Params, rng: np.random.Generator) -> None:
         import gtsam

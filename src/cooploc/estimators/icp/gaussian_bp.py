@@ -69,6 +69,7 @@ Derivation of the messages for singular beliefs: docs/icp.md.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -174,6 +175,8 @@ class ICP:
     Params: ClassVar[type[Params]] = ICPParams
     needs_truth: ClassVar[bool] = True
     default_preset: ClassVar[str] = "brambilla-road"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "odometry": ("odometry",), "v2f": ("relative-position",)}
     #: whether `info["v2f_track"]` names the estimator's own feature tracks (DA versions)
     names_tracks: ClassVar[bool] = False
 

@@ -30,6 +30,7 @@ Complexity per step: that of `plbp_solve`, plus O(n dx³) for prediction and fix
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
@@ -82,6 +83,8 @@ class PLBP:
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "aoa-grid"
     required_sensors: ClassVar[tuple[str, ...]] = ("aoa",)
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "aoa": ("angle-of-arrival",), "gnss": ("gnss-position",)}
     posterior: ClassVar[bool] = True
 
     def __init__(self, setup: Setup, params: PLBPParams, rng: np.random.Generator) -> None:

@@ -37,6 +37,7 @@ Complexity per step: O(M N) for the gate of M GPS rows, O(N²) for the maps.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
@@ -80,6 +81,8 @@ class _SmeFilter:
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "zhang2016-cv"
     required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "radar")
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("anonymous-position", "gnss-position"), "radar": ("infrastructure-radar",)}
 
     def __init__(self, setup: Setup, params: _SmeParams, rng: np.random.Generator) -> None:
         from scipy.stats import chi2
