@@ -43,6 +43,8 @@ Choices the paper leaves open
   row's covariance); `birth_weight = 0` turns births off (as in Zhang's scenarios,
   where no vehicle enters).
 - κ = 0 when the setup has no clutter (the update then normalises by Σ p_D w q alone).
+- A component covariance that the Joseph update leaves indefinite (predicted and row
+  covariances too far apart for float64) is an `EstimatorError`, not a repair.
 
 Estimates are set-valued: the beliefs carry the ids of `frame.vehicles` in extraction
 order, not identities, so ``info["set_valued"]`` is True and metrics score them after
@@ -64,7 +66,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from cooploc.estimators.base import default_birth_cov, predict_steps
+from cooploc.errors import EstimatorError
+from cooploc.estimators.base import checked_states, default_birth_cov, predict_steps
 from cooploc.gaussian import Gaussians, symmetrize
 from cooploc.params import Params, param
 from cooploc.particles import log_sum_exp
@@ -255,9 +258,15 @@ class GMPHD:
         dz = self.H.shape[0]
         z = gnss.z if gnss is not None else np.zeros((0, dz))
         R = gnss.cov if gnss is not None else np.zeros((0, dz, dz))
-        updated = phd_update(mixture, z, R, self.H, self.p_d, self.kappa) if len(mixture) else mixture
-        self.mixture = merge_components(updated, p.prune_threshold, p.merge_threshold,
-                                        p.max_components)
+        try:
+            updated = phd_update(mixture, z, R, self.H, self.p_d, self.kappa) if len(mixture) else mixture
+            self.mixture = merge_components(updated, p.prune_threshold, p.merge_threshold,
+                                            p.max_components)
+        except np.linalg.LinAlgError:
+            eig = np.linalg.eigvalsh(mixture.cov) if len(mixture) else np.ones((1, 1))
+            raise EstimatorError(self.name, "a mixture component's covariance lost positive definiteness in "
+                                 f"the Joseph update (predicted variances {eig.min():.3g} … {eig.max():.3g}, "
+                                 "too far from the rows' for float64)") from None
         self._last_rows = (np.array(z), np.array(R))
         return self._extract(frame)
 
@@ -282,4 +291,5 @@ class GMPHD:
         for t in range(n):  # n ≤ a handful: heaviest first, each pick lowers its weight by one
             picks[t] = int(np.argmax(remaining))
             remaining[picks[t]] -= 1.0
-        return Estimate(StateSet(np.sort(frame.vehicles), m.mean[picks], m.cov[picks]), None, info)
+        vehicles = checked_states(self.name, "vehicle", np.sort(frame.vehicles), m.mean[picks], m.cov[picks])
+        return Estimate(vehicles, None, info)

@@ -30,11 +30,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from cooploc.estimators.base import VehicleBeliefs
+from cooploc.estimators.base import VehicleBeliefs, checked_states
 from cooploc.gaussian import Gaussians, kf_predict, kf_update
 from cooploc.params import Params
 from cooploc.registry import register_estimator
-from cooploc.types import Batch, Estimate, Frame, Setup, StateSet
+from cooploc.types import Batch, Estimate, Frame, Setup
 
 __all__ = ["GnssKF", "GnssKFParams"]
 
@@ -93,7 +93,7 @@ class GnssKF:
             beliefs = self._update(beliefs, gnss)
         self.vehicles.beliefs = beliefs
         ids = self.vehicles.ids
-        return Estimate(StateSet(ids, beliefs.mean, beliefs.cov))
+        return Estimate(checked_states(self.name, "vehicle", ids, beliefs.mean, beliefs.cov))
 
     def _update_odometry(self, beliefs: Gaussians, previous: Gaussians, moving: np.ndarray,
                          odometry: Batch) -> Gaussians:

@@ -27,15 +27,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from cooploc.estimators.base import (
-    birth_beliefs,
-    default_birth_cov,
-    predict_steps,
-)
+from cooploc.estimators.base import birth_beliefs, checked_states, default_birth_cov, predict_steps
 from cooploc.gaussian import Gaussians, block_diagonal, kf_update, symmetrize
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
-from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup
 
 __all__ = ["OracleKF", "OracleKFParams"]
 
@@ -261,10 +257,12 @@ class OracleKF:
         vstart, fstart = self._blocks()
         vi = vstart[:, None] + np.arange(self.dx)
         v_cov = self.cov[vi[:, :, None], vi[:, None, :]]
-        vehicles = StateSet(self.vehicle_ids, self.mean[vi].reshape(nv, self.dx), v_cov)
+        vehicles = checked_states(self.name, "vehicle", self.vehicle_ids, self.mean[vi].reshape(nv, self.dx),
+                                  v_cov)
         features = None
         if self.df:
             fi = fstart[:, None] + np.arange(self.df)
-            features = StateSet(self.feature_ids, self.mean[fi].reshape(nf, self.df),
-                                self.cov[fi[:, :, None], fi[:, None, :]])
+            features = checked_states(self.name, "feature", self.feature_ids,
+                                      self.mean[fi].reshape(nf, self.df),
+                                      self.cov[fi[:, :, None], fi[:, None, :]])
         return Estimate(vehicles, features, {"state_dim": int(self.mean.size)})

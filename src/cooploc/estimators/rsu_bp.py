@@ -81,7 +81,7 @@ import numpy as np
 
 from cooploc.association import association_weights, bp_association, decide, padded_groups
 from cooploc.errors import ConfigError
-from cooploc.estimators.base import birth_beliefs, predict_steps
+from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -456,7 +456,7 @@ class RsuBP:
     def _estimate(self, info: dict[str, Any]) -> Estimate:
         N = self.params.n_particles
         v_mean, v_cov = weighted_moments(self.vehicles)
-        vehicles = StateSet(self.vehicle_ids, v_mean, v_cov)
+        vehicles = checked_states(self.name, "vehicle", self.vehicle_ids, v_mean, v_cov)
         v_ess = effective_sample_size(self.vehicles.log_weights)
         info["vehicle_ess"] = v_ess
         features = None
@@ -467,7 +467,7 @@ class RsuBP:
             else:
                 f_mean, f_cov = weighted_moments(self.features)
                 f_ess = effective_sample_size(self.features.log_weights)
-            features = StateSet(self.feature_ids, f_mean, f_cov)
+            features = checked_states(self.name, "feature", self.feature_ids, f_mean, f_cov)
             info["feature_ess"] = f_ess
         elif self.df:
             features = StateSet.empty(self.df)

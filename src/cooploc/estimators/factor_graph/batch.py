@@ -38,10 +38,11 @@ from typing import ClassVar
 import numpy as np
 
 from cooploc import least_squares
+from cooploc.errors import EstimatorError
 from cooploc.estimators.factor_graph.estimates import EstimateLayout, PositionFilter
 from cooploc.estimators.factor_graph.factors import NEW, OLD
 from cooploc.estimators.factor_graph.graph import GraphData, GraphProblem
-from cooploc.estimators.factor_graph.gtsam_backend import solve_gtsam
+from cooploc.estimators.factor_graph.gtsam_backend import first_sentence, solve_gtsam
 from cooploc.least_squares import LMResult
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
@@ -97,7 +98,7 @@ class _BatchGraph:
         least_squares.compile_kernels()  # compile (or load from cache) here, not in smooth()
         self.data = GraphData(setup, self.kind, params.gap_variance, params.topology_odometry_noise)
         self.filter = PositionFilter()
-        self.estimates = EstimateLayout(setup)
+        self.estimates = EstimateLayout(setup, self.name)
         self.initial: list[FloatArray] = []   # filtered positions: the smoother's start
 
     def step(self, frame: Frame) -> Estimate:
@@ -117,9 +118,18 @@ class _BatchGraph:
             return LMResult(x0, np.zeros((0, 2, 2)), 0, 0.0)
         settings = {"max_iterations": p.max_iterations, "relative_tolerance": p.relative_tolerance,
                     "absolute_tolerance": p.absolute_tolerance, "lambda_initial": p.lambda_initial}
-        if p.solver == "gtsam":
-            return solve_gtsam(self.data, x0, huber=p.huber, **settings)
-        return least_squares.solve_lm(GraphProblem.of(self.data, p.huber).linearize, x0, **settings)
+        try:
+            if p.solver == "gtsam":
+                return solve_gtsam(self.data, x0, huber=p.huber, **settings)
+            return least_squares.solve_lm(GraphProblem.of(self.data, p.huber).linearize, x0, **settings)
+        except np.linalg.LinAlgError as exc:
+            raise EstimatorError(self.name, "the information matrix of the graph is not positive definite "
+                                 f"in float64 ({exc}): the factor covariances span too many orders of "
+                                 "magnitude") from None
+        except EstimatorError:
+            raise
+        except RuntimeError as exc:  # GTSAM's IndeterminateLinearSystemException
+            raise EstimatorError(self.name, f"GTSAM: {first_sentence(exc)}") from None
 
     def smooth(self) -> list[Estimate]:
         """Smoothed estimate of every step so far (one LM solve of the whole graph)."""

@@ -77,6 +77,7 @@ import numpy as np
 
 from cooploc.consensus import GroupConsensus, flood
 from cooploc.errors import ConfigError
+from cooploc.estimators.base import checked_states
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
 from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize, to_information
 from cooploc.network import Network
@@ -223,7 +224,8 @@ class ICP:
             self.local.vehicles.beliefs = posterior
         info.update(network.counters())
         info["bpa_iterations"] = iterations
-        return Estimate(StateSet(agents, posterior.mean, posterior.cov), self._feature_estimates(info), info)
+        vehicles = checked_states(self.name, "vehicle", agents, posterior.mean, posterior.cov)
+        return Estimate(vehicles, self._feature_estimates(info), info)
 
     def _predict_tracks(self, agents: IntArray) -> None:
         """(12): every agent predicts its copies; agents that left drop theirs, new ones start empty."""
@@ -350,4 +352,4 @@ class ICP:
         if not ok.any():
             return StateSet.empty(self.d)
         belief = from_information(Lam[ok], eta[ok])
-        return StateSet(copies.ids[ok], belief.mean, belief.cov)
+        return checked_states(self.name, "feature", copies.ids[ok], belief.mean, belief.cov)

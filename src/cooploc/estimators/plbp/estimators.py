@@ -37,7 +37,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 
 from cooploc.errors import ConfigError
-from cooploc.estimators.base import VehicleBeliefs
+from cooploc.estimators.base import VehicleBeliefs, checked_states
 from cooploc.estimators.plbp.links import link_factors
 from cooploc.estimators.plbp.solve import plbp_solve
 from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize, to_information
@@ -45,7 +45,7 @@ from cooploc.geometry import wrap_angle
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
 from cooploc.sensors import AngleOfArrival
-from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup
 
 __all__ = ["PLBP", "PLBPParams", "PriorLBP", "PriorLBPParams"]
 
@@ -119,7 +119,8 @@ class PLBP:
         iterates[..., self._heading] = wrap_angle(iterates[..., self._heading])
         self.vehicles.beliefs = Gaussians(mean, posterior.cov)
         info: dict[str, Any] = {"iterate_means": iterates, "n_links": len(links)}
-        return Estimate(StateSet(self.vehicles.ids, mean, posterior.cov), info=info)
+        return Estimate(checked_states(self.name, "vehicle", self.vehicles.ids, mean, posterior.cov),
+                        info=info)
 
     def _predict(self, beliefs: Gaussians, moving: np.ndarray) -> Gaussians:
         """Prediction with the motion model of every vehicle that was already there."""

@@ -43,7 +43,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from cooploc.estimators.base import birth_beliefs, default_birth_cov
+from cooploc.estimators.base import birth_beliefs, checked_states, default_birth_cov
 from cooploc.estimators.sme.pseudo_measurement import (
     PseudoMeasurement,
     complex_power_sums,
@@ -51,7 +51,7 @@ from cooploc.estimators.sme.pseudo_measurement import (
     topology,
 )
 from cooploc.params import Params, param
-from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup
 
 
 @dataclass(frozen=True)
@@ -174,4 +174,4 @@ class _SmeFilter:
     def _estimate(self, info: dict[str, Any]) -> Estimate:
         mean, cov = self._moments()
         info["set_valued"] = True
-        return Estimate(StateSet(self.ids, mean, cov), None, info)
+        return Estimate(checked_states(self.name, "vehicle", self.ids, mean, cov), None, info)
