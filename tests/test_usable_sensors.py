@@ -10,6 +10,7 @@ from cooploc.errors import ConfigError
 from cooploc.estimators.gnss_kf import GnssKF
 from cooploc.registry import estimators, make_estimator, unused_kinds
 from cooploc.sensors import _SENSORS
+from cooploc.types import Batch, Frame
 from helpers import froehle_recording, preset_recording
 
 ZHANG_OFFERS = "gnss (anonymous-position), radar (infrastructure-radar)"
@@ -65,3 +66,15 @@ def test_every_estimator_declares_known_kinds_and_sensor_models():
 def test_a_class_without_the_declaration_is_taken_to_use_everything(zhang):
     legacy = type("Legacy", (), {"name": "legacy"})   # a plug-in written before usable_sensors
     assert unused_kinds(legacy, zhang.setup) is None
+
+
+def test_gnss_rows_the_baseline_cannot_use_are_counted_not_hidden():
+    recording = froehle_recording(0, n_steps=3)
+    frames = list(recording.frames)
+    gnss = frames[1].batches["gnss"]
+    subject = gnss.subject.copy()
+    subject[0] = -1                                   # one fix arrives without its vehicle's id
+    frames[1] = Frame(1, frames[1].t, frames[1].vehicles,
+                      {**frames[1].batches, "gnss": Batch(gnss.z, gnss.cov, subject, subject)})
+    est = GnssKF(recording.setup, GnssKF.Params(), np.random.default_rng(0))
+    assert [est.step(f).info["gnss_rows_unused"] for f in frames] == [0, 1, 0]

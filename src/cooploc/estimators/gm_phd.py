@@ -191,7 +191,10 @@ class GMPHDParams(Params):
 
 @register_estimator
 class GMPHD:
-    """Gaussian-mixture PHD filter of the anonymous GPS rows (Vo & Ma 2006)."""
+    """Gaussian-mixture PHD filter of the anonymous GPS rows (Vo & Ma 2006).
+
+    Uses: GNSS rows, anonymous or identified (identities are ignored); not the radar.
+    """
 
     name: ClassVar[str] = "gm-phd"
     summary: ClassVar[str] = "Gaussian-mixture PHD filter (Vo & Ma 2006) of anonymous GPS rows"

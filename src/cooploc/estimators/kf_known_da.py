@@ -37,7 +37,11 @@ class KFKnownDAParams(Params):
 
 @register_estimator
 class KFKnownDA:
-    """Per-vehicle Kalman filter of anonymous GPS rows given their true association."""
+    """Per-vehicle Kalman filter of anonymous GPS rows given their true association.
+
+    Uses: GNSS rows, anonymous (`AnonymousPosition`, relabelled by their true origin) or
+    identified, and odometry; never the radar (Zhang §4.1).
+    """
 
     name: ClassVar[str] = "kf-known-da"
     summary: ClassVar[str] = ("Kalman filter per vehicle of anonymous GPS rows given their true "

@@ -51,7 +51,11 @@ class OracleKFParams(Params):
 
 @register_estimator
 class OracleKF:
-    """Joint Kalman filter over all vehicles and features with the true association."""
+    """Joint Kalman filter over all vehicles and features with the true association.
+
+    Uses: identified GNSS rows and V2F rows (their true origins). Anonymous GNSS, radar,
+    odometry and AoA it does not fuse: where a scenario has those it is no bound.
+    """
 
     name: ClassVar[str] = "oracle-kf"
     summary: ClassVar[str] = (

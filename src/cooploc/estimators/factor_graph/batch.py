@@ -161,7 +161,10 @@ class FgTopologyNewParams(FactorGraphParams):
 
 @register_estimator
 class FgTopologyOld(_BatchGraph):
-    """Batch LM on GPS, odometry and the old topology factor (eq. 8, Gulati 2016)."""
+    """Batch LM on GPS, odometry and the old topology factor (eq. 8, Gulati 2016).
+
+    Uses: identified GNSS rows, odometry, and the radar rows as topology.
+    """
 
     name: ClassVar[str] = "fg-topology-old"
     Params: ClassVar[type[Params]] = FgTopologyOldParams
@@ -171,7 +174,10 @@ class FgTopologyOld(_BatchGraph):
 
 @register_estimator
 class FgTopologyNew(_BatchGraph):
-    """Batch LM on GPS, odometry and the new topology factor (eqs. 9–16)."""
+    """Batch LM on GPS, odometry and the new topology factor (eqs. 9–16).
+
+    Uses: identified GNSS rows, odometry, and the radar rows as topology.
+    """
 
     name: ClassVar[str] = "fg-topology-new"
     Params: ClassVar[type[Params]] = FgTopologyNewParams

@@ -59,7 +59,10 @@ class ISAM2Params(Params):
 
 @register_estimator
 class FgIsam2:
-    """The new-factor graph, updated incrementally with GTSAM's iSAM2; filtered estimates."""
+    """The new-factor graph, updated incrementally with GTSAM's iSAM2; filtered estimates.
+
+    Uses: identified GNSS rows, odometry, and the radar rows as topology.
+    """
 
     name: ClassVar[str] = "fg-isam2"
     summary: ClassVar[str] = "factor graph with the new topology factor, incremental iSAM2 (filtered)"

@@ -98,7 +98,10 @@ class ICPDAPFParams(ICPDALCParams):
 
 @register_estimator
 class ICPDAPF(ICPDALC):
-    """`icp-da-pf`: BPA-DA, soft-association particle BPA-L with log-likelihood consensus (§IV-C)."""
+    """`icp-da-pf`: BPA-DA, soft-association particle BPA-L with log-likelihood consensus (§IV-C).
+
+    Uses what `icp` uses, with the V2F association inferred.
+    """
 
     name: ClassVar[str] = "icp-da-pf"
     summary: ClassVar[str] = (

@@ -75,7 +75,14 @@ class PriorLBPParams(PLBPParams):
 
 @register_estimator
 class PLBP:
-    """Posterior-linearization Gaussian BP over AoA links, one solve per frame."""
+    """Posterior-linearization Gaussian BP over AoA links, one solve per frame.
+
+    Uses: AoA rows and identified GNSS fixes (the anchors').
+
+    Knowingly inconsistent: Gaussian BP on the loopy AoA graph counts shared links more
+    than once and each link is linearized, so the covariances are over-confident; its
+    NEES on aoa-grid is about 1.5× the χ²₂ mean (tests/test_consistency.py allows 2×).
+    """
 
     name: ClassVar[str] = "plbp"
     summary: ClassVar[str] = "AoA cooperative position + heading, posterior-linearization Gaussian BP"
@@ -161,7 +168,10 @@ class PLBP:
 
 @register_estimator
 class PriorLBP(PLBP):
-    """The baseline: the same Gaussian BP, linearized once w.r.t. the priors."""
+    """The baseline: the same Gaussian BP, linearized once w.r.t. the priors.
+
+    Uses what `plbp` uses; knowingly inconsistent for the same reason.
+    """
 
     name: ClassVar[str] = "prior-lbp"
     summary: ClassVar[str] = "AoA cooperative position + heading, Gaussian BP linearized at the priors"

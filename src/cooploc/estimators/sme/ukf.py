@@ -58,7 +58,10 @@ class SmeUKFParams(_SmeParams):
 
 @register_estimator
 class SmeUKF(_SmeFilter):
-    """SME under an unscented Kalman filter over the joint state (§4.2.3 check)."""
+    """SME under an unscented Kalman filter over the joint state (§4.2.3 check).
+
+    Uses: as `sme-pf`, GNSS rows and the radar's topology.
+    """
 
     name: ClassVar[str] = "sme-ukf"
     summary: ClassVar[str] = "symmetric measurement equation under an unscented Kalman filter (check)"
