@@ -173,8 +173,8 @@ class ICP:
 
     Knowingly inconsistent: the BPA-L is Gaussian BP on a loopy graph (vehicles and
     features), which counts information shared by several V2F rows more than once, so
-    its covariances are over-confident; its time-averaged NEES on brambilla-road is
-    about twice the χ²₂ mean (tests/test_consistency.py allows up to 3×).
+    its covariances are over-confident: its time-averaged NEES on brambilla-road lies
+    above the χ² band (tests/test_consistency.py bounds it by 3× the χ²₂ mean).
     """
 
     name: ClassVar[str] = "icp"
