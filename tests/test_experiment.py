@@ -106,7 +106,7 @@ def test_results_folder(tmp_path):
         assert (folder / name).is_file(), name
     table = pq.read_table(folder / "errors.parquet")
     assert table.column_names == ["run", "step", "t", "estimator", "kind", "id", "err_pos",
-                                  "err_vel", "err_heading"]
+                                  "err_vel", "err_heading", "nees"]
     # 2 runs × 30 steps × (2 vehicles for gnss-kf + 2 vehicles and 3 features for oracle-kf)
     assert table.num_rows == 2 * 30 * (2 + 5)
     assert set(table.column("kind").to_pylist()) == {"vehicle", "feature"}
@@ -119,6 +119,13 @@ def test_results_folder(tmp_path):
         np.array(rows["kind"]) == "vehicle")
     np.testing.assert_allclose(summary["estimators"]["gnss-kf"]["vehicle_rmse"]["1"],
                                np.sqrt(np.mean(err[sel] ** 2)), rtol=1e-12)  # same data
+    vehicles = (np.array(rows["estimator"]) == "gnss-kf") & (np.array(rows["kind"]) == "vehicle")
+    np.testing.assert_allclose(summary["estimators"]["gnss-kf"]["nees_mean"],
+                               np.mean(np.array(rows["nees"])[vehicles]), rtol=1e-12)
+    # gnss-kf is the GNSS-only baseline: it says that it left the V2F rows aside
+    assert summary["estimators"]["gnss-kf"]["unused_kinds"] == ["v2f"]
+    assert summary["estimators"]["oracle-kf"]["unused_kinds"] == []
+    assert "gnss-kf did not use this scenario's v2f measurements" in (folder / "report.md").read_text()
     # config.toml is the full resolved configuration and reruns to the same numbers
     config = ExperimentConfig.from_dict(tomllib.loads((folder / "config.toml").read_text()))
     assert config == result.config

@@ -32,11 +32,13 @@ def test_is_gnss_kf_on_identified_rows(seed: int, overrides: dict) -> None:
 
 
 def test_without_association_it_only_predicts(seed: int) -> None:
-    # the same anonymous rows given to gnss-kf (no origin) leave every vehicle unobserved
+    # the same anonymous rows given to gnss-kf (no origin) leave every vehicle unobserved; the
+    # registry refuses gnss-kf here for that reason (tests/test_usable_sensors.py), so it is
+    # built directly
     preset = get_preset("zhang2016-cv")
     rec = preset.generate(np.random.default_rng([seed, 4]), preset.params.with_overrides({"n_steps": 10}))
     known = make_estimator("kf-known-da", rec.setup, None, np.random.default_rng(0), rec.truth)
-    blind = make_estimator("gnss-kf", rec.setup, None, np.random.default_rng(0))
+    blind = GnssKF(rec.setup, GnssKF.Params(), np.random.default_rng(0))
     for frame in rec.frames:
         a, b = known.step(frame), blind.step(frame)
     # 10 steps with fixes shrink the position variance far below the prediction-only one

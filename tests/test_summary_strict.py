@@ -26,7 +26,8 @@ def _table(err_pos, ids, steps, kind=VEHICLE, heading=None) -> ErrorTable:
     n = len(err_pos)
     return ErrorTable(np.asarray(steps), np.asarray(steps) * 0.5, np.full(n, kind), np.asarray(ids),
                       np.asarray(err_pos, float), np.full(n, np.nan),
-                      np.full(n, np.nan) if heading is None else np.asarray(heading, float))
+                      np.full(n, np.nan) if heading is None else np.asarray(heading, float),
+                      np.full(n, np.nan))  # nees: no covariance
 
 
 def _result(bad: float, heading: bool = False) -> ExperimentResult:

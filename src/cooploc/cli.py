@@ -153,14 +153,16 @@ def _print_summary(folder: Path) -> None:
     summary = json.loads((folder / "summary.json").read_text())
     table = Table(title=f"{summary['scenario']}: {summary['runs']} runs, seed {summary['seed']}")
     table.add_column("estimator")
-    ids = sorted({v for e in summary["estimators"].values() for v in e["vehicle_rmse"]}, key=int)
-    for vid in ids[:6]:
+    from cooploc.plots import shown_ids
+
+    ids = shown_ids(sorted({v for e in summary["estimators"].values() for v in e["vehicle_rmse"]}, key=int))
+    for vid in ids:
         table.add_column(f"vehicle {vid} RMSE \\[m]", justify="right")
     table.add_column("all vehicles \\[m]", justify="right")
     table.add_column("steps/s", justify="right")
     for name, est in summary["estimators"].items():
         cells = [f"{est['vehicle_rmse'][v]:.3f}" if v in est["vehicle_rmse"] else "–"
-                 for v in ids[:6]]
+                 for v in ids]
         all_v = est["vehicle_rmse_all"]
         sps = est["steps_per_second"]
         table.add_row(name, *cells, "–" if all_v is None else f"{all_v:.3f}",

@@ -64,7 +64,7 @@ from cooploc.backends import BACKENDS, completed
 from cooploc.errors import ConfigError, EstimatorError
 from cooploc.metrics import ErrorTable, evaluate, ospa_per_step, score_association
 from cooploc.params import Params
-from cooploc.registry import get_estimator, get_preset, make_estimator
+from cooploc.registry import get_estimator, get_preset, make_estimator, unused_kinds
 from cooploc.types import Estimate, Frame, Recording, StateSet
 
 __all__ = [
@@ -229,6 +229,7 @@ class RunResult:
     discarded: dict[str, tuple[int, int]] = field(default_factory=dict)
     ospa: dict[str, np.ndarray] = field(default_factory=dict)  # per step, m (metrics.ospa)
     failures: dict[str, Failure] = field(default_factory=dict)
+    unused_kinds: dict[str, tuple[str, ...]] = field(default_factory=dict)  # registry.unused_kinds
     # run 0 only: each estimator's estimates for the viewer (`cooploc.view.estimates`)
     estimates: dict[str, list[Estimate]] | None = None
 
@@ -386,13 +387,14 @@ def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = No
     names = [e.name for e in config.estimators]
     scenario_rng, estimator_rngs = run_generators(config.seed, run, names)
     recording = preset.generate(scenario_rng, config.scenario_params)
-    errors, seconds, steps, association, discarded, ospa = {}, {}, {}, {}, {}, {}
+    errors, seconds, steps, association, discarded, ospa, unused = {}, {}, {}, {}, {}, {}, {}
     failures = {}
     kept: dict[str, list[Estimate]] | None = {} if (run == 0 if keep_estimates is None
                                                     else keep_estimates) else None
     for spec in config.estimators:
         estimator = make_estimator(spec.name, recording.setup, spec.params,
                                    estimator_rngs[spec.name], recording.truth)
+        unused[spec.name] = unused_kinds(get_estimator(spec.name), recording.setup) or ()
         timer = StepTimer()
         try:
             estimates = estimate(estimator, recording, timer=timer)
@@ -413,7 +415,7 @@ def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = No
 
             kept[spec.name] = kept_estimates(recording, estimates)
     return RunResult(run, errors, seconds, steps, association, discarded, ospa, failures=failures,
-                     estimates=kept)
+                     unused_kinds=unused, estimates=kept)
 
 
 # ----------------------------------------------------------------------------

@@ -11,6 +11,15 @@ Kalman filter (e.g. Bar-Shalom, Li & Kirubarajan 2001, §5.2):
 
 The Joseph form keeps P symmetric positive semi-definite under round-off, which the
 short form (I − K H) P⁻ does not guarantee; gains come from `solve`, never an inverse.
+It still fails when P⁻ and R differ by more than float64 can hold (P⁻ ≫ R: the
+posterior is a small difference of huge numbers; R below the round-off of H P⁻ Hᵀ: S
+is singular). `kf_update` then falls back to the square-root (array) form
+`kf_update_square_root` (Kaminski, Bryson & Schmidt 1971; Grewal & Andrews §7.5): with
+Cholesky factors P⁻ = Sₚ Sₚᵀ, R = Sᵣ Sᵣᵀ, the QR factorisation of the pre-array
+[[Sᵣ, H Sₚ], [0, Sₚ]] gives the lower-triangular post-array [[S^½, 0], [K̄, P^½]] with
+K = K̄ S^−½ — it never forms S or subtracts, so P stays positive definite. The fallback
+runs only when the Joseph form fails, so well-conditioned updates are bit-for-bit the
+Joseph ones.
 
 Information form: Λ = P⁻¹, η = P⁻¹ m. A measurement z = H x + w, w ~ N(0, R) adds
 Hᵀ R⁻¹ H to Λ and Hᵀ R⁻¹ z to η — the product of Gaussian messages is a sum, which is
@@ -52,6 +61,7 @@ __all__ = [
     "information_update",
     "kf_predict",
     "kf_update",
+    "kf_update_square_root",
     "sigma_points",
     "statistical_linear_regression",
     "symmetrize",
@@ -114,7 +124,7 @@ def kf_predict(
 
 
 def kf_update(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray) -> Gaussians:
-    """Joseph-form Kalman update of every belief.
+    """Joseph-form Kalman update of every belief (square-root form where it fails).
 
     Parameters
     ----------
@@ -123,6 +133,19 @@ def kf_update(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray) -> 
     H : (dz, dx) or (n, dz, dx).
     R : (dz, dz) or (n, dz, dz).
     """
+    try:
+        post = _kf_update_joseph(prior, z, H, R)
+    except np.linalg.LinAlgError:
+        return kf_update_square_root(prior, z, H, R)
+    if not _is_positive_definite(post.cov):  # P⁻ and R too far apart for the Joseph form
+        try:
+            return kf_update_square_root(prior, z, H, R)
+        except np.linalg.LinAlgError:  # P⁻ itself only semi-definite: the Joseph result stands
+            pass
+    return post
+
+
+def _kf_update_joseph(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray) -> Gaussians:
     P = prior.cov
     Ht = np.swapaxes(H, -1, -2)
     PHt = P @ Ht
@@ -134,6 +157,40 @@ def kf_update(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray) -> 
     # P = (I − K H) P (I − K H)ᵀ + K R Kᵀ   (Joseph form)
     cov = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
     return Gaussians(mean, symmetrize(cov))
+
+
+def _is_positive_definite(cov: FloatArray) -> bool:
+    try:
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return False
+    return bool(np.isfinite(cov).all())
+
+
+def kf_update_square_root(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray) -> Gaussians:
+    """The Kalman update of `kf_update` in square-root (array) form (module docstring).
+
+    Same arguments; needs P⁻ and R positive definite. Raises `LinAlgError` where S is
+    singular even so (a zero on the diagonal of S^½).
+    """
+    P = prior.cov
+    n_x, n_z = P.shape[-1], np.shape(z)[-1]
+    S_p = np.linalg.cholesky(P)                                        # P⁻ = Sₚ Sₚᵀ
+    S_r = np.broadcast_to(np.linalg.cholesky(R), (*P.shape[:-2], n_z, n_z))
+    H = np.broadcast_to(H, (*P.shape[:-2], n_z, n_x))
+    pre = np.zeros((*P.shape[:-2], n_z + n_x, n_z + n_x))
+    pre[..., :n_z, :n_z] = S_r
+    pre[..., :n_z, n_z:] = H @ S_p
+    pre[..., n_z:, n_z:] = S_p
+    # pre = L Qᵀ with L lower triangular: the QR factorisation of preᵀ; L Lᵀ = pre preᵀ
+    post = np.swapaxes(np.linalg.qr(np.swapaxes(pre, -1, -2), mode="r"), -1, -2)
+    S_half, K_bar, P_half = post[..., :n_z, :n_z], post[..., n_z:, :n_z], post[..., n_z:, n_z:]
+    if not (np.abs(np.diagonal(S_half, axis1=-2, axis2=-1)) > 0).all():
+        raise np.linalg.LinAlgError("the innovation covariance is singular")
+    innovation = z - np.einsum("...ij,...j->...i", H, prior.mean)
+    white = np.linalg.solve(S_half, innovation[..., None])[..., 0]     # S^−½ (z − H m⁻)
+    mean = prior.mean + np.einsum("...ij,...j->...i", K_bar, white)    # m = m⁻ + K̄ S^−½ ν
+    return Gaussians(mean, symmetrize(P_half @ np.swapaxes(P_half, -1, -2)))
 
 
 def to_information(belief: Gaussians) -> tuple[FloatArray, FloatArray]:

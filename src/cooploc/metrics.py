@@ -16,7 +16,9 @@
   that `cooploc.types.Estimate` defines (``v2f_association``, ``v2f_track``,
   ``v2f_discarded``).
 - `nees`: normalised estimation error squared (x − x̂)ᵀ P⁻¹ (x − x̂), for consistency
-  checks against χ² bounds.
+  checks against χ² bounds. `evaluate` reports the 2-D *position* NEES of every scored
+  entity (the position block of the estimate's covariance; χ²₂ for a consistent
+  estimator), and `nees_band` gives the χ² 95 % band of its mean over many samples.
 
 Only entities that are both estimated and present in the truth at a step are scored;
 features are matched by id.
@@ -64,6 +66,7 @@ __all__ = [
     "ecdf",
     "evaluate",
     "nees",
+    "nees_band",
     "optimal_assignment",
     "ospa",
     "ospa_per_step",
@@ -202,11 +205,36 @@ def nees(estimate: StateSet, true_states: FloatArray) -> FloatArray:
                      np.linalg.solve(estimate.cov, residual[..., None])[..., 0])
 
 
+def nees_band(samples: int, dim: int = 2, probability: float = 0.95) -> tuple[float, float]:
+    """Two-sided `probability` band of the mean of `samples` independent χ²(dim) values.
+
+    The sum of N χ²(d) values is χ²(N d), so the mean lies in
+    [χ²_{Nd}((1 − p)/2), χ²_{Nd}((1 + p)/2)] / N. Errors of one run are correlated over
+    steps, so for a time average over K steps of M runs this band (N = M K) is the
+    usual, optimistic consistency test (Bar-Shalom, Li & Kirubarajan 2001, §5.4).
+    """
+    from scipy.stats import chi2
+
+    tail = (1.0 - probability) / 2
+    low, high = chi2.ppf([tail, 1.0 - tail], samples * dim)
+    return float(low / samples), float(high / samples)
+
+
+def _position_nees(est: StateSet, rows: npt.NDArray[np.bool_], true: FloatArray,
+                   layout: StateLayout) -> FloatArray:
+    """2-D position NEES of the estimates `rows` against their true states (n,)."""
+    pos = list(layout.position)
+    residual = true[:, pos] - est.mean[rows][:, pos]
+    cov = est.cov[rows][:, pos][:, :, pos]
+    return np.einsum("ni,ni->n", residual, np.linalg.solve(cov, residual[..., None])[..., 0])
+
+
 @dataclass(frozen=True)
 class ErrorTable:
     """Errors in long format, one row per (step, entity); columns are arrays.
 
-    `err_vel` and `err_heading` are NaN where the layout has no such component.
+    `err_vel` and `err_heading` are NaN where the layout has no such component; `nees`
+    is the 2-D position NEES (χ²₂ for a consistent estimator).
     """
 
     step: IntArray
@@ -216,6 +244,7 @@ class ErrorTable:
     err_pos: FloatArray
     err_vel: FloatArray
     err_heading: FloatArray
+    nees: FloatArray
 
     def __len__(self) -> int:
         return self.step.size
@@ -228,7 +257,7 @@ class ErrorTable:
         if not tables:
             empty = np.zeros(0)
             return cls(empty.astype(int), empty, empty.astype(int), empty.astype(int),
-                       empty, empty, empty)
+                       empty, empty, empty, empty)
         return cls(*(np.concatenate([getattr(t, f) for t in tables])
                      for f in cls.__dataclass_fields__))
 
@@ -317,7 +346,7 @@ def evaluate(recording: Recording, estimates: Sequence[Estimate]) -> ErrorTable:
             e_pos, e_vel, e_head = _entity_errors(est.mean[ok], states[col[ok]], layout)
             n = e_pos.size
             columns.append((np.full(n, k), np.full(n, t), np.full(n, kind), est.ids[ok],
-                            e_pos, e_vel, e_head))
+                            e_pos, e_vel, e_head, _position_nees(est, ok, states[col[ok]], layout)))
     if not columns:
         return ErrorTable.concatenate([])
     return ErrorTable(*(np.concatenate(c) for c in zip(*columns, strict=True)))

@@ -42,12 +42,23 @@ __all__ = [
     "run_notes",
     "run_report",
     "save_figure",
+    "shown_ids",
     "sweep_plot",
     "trajectory_panel",
 ]
 
-MAX_PANELS = 6  # more vehicles than this: the first ones are drawn, the pooled RMSE is in the report
+MAX_PANELS = 6  # more vehicles than this: `shown_ids` picks them, the pooled RMSE is in the report
 BOUND_ESTIMATORS = ("oracle-kf", "icp", "kf-known-da")
+
+
+def shown_ids(ids: Sequence[Any]) -> list[Any]:
+    """The vehicles given a panel or a table column: all of sorted `ids` up to `MAX_PANELS`,
+    else `MAX_PANELS` of them evenly spaced from the first to the last — the first few alone
+    may all be alike (aoa-grid's six anchors are ids 0–5)."""
+    ids = list(ids)
+    if len(ids) <= MAX_PANELS:
+        return ids
+    return [ids[i] for i in np.linspace(0, len(ids) - 1, MAX_PANELS).round().astype(int)]
 
 
 def _style(name: str) -> dict[str, Any]:
@@ -131,7 +142,7 @@ def rmse_over_time(result: ExperimentResult, path: Path) -> Path:
     names = [e.name for e in result.config.estimators]
     tables = {name: result.errors(name)[1] for name in names}
     ids = np.unique(np.concatenate([t.id[t.kind == VEHICLE] for t in tables.values()]))
-    ids = ids[:MAX_PANELS]
+    ids = np.array(shown_ids(ids))
     fig, axes = figure_panels(max(ids.size, 1), f"{result.config.scenario}: position RMSE over time "
                         f"({result.config.runs} runs)")
     for ax, vid in zip(axes, ids, strict=False):
@@ -152,7 +163,7 @@ def rmse_over_time(result: ExperimentResult, path: Path) -> Path:
 def per_run_rmse_cdf(per_run: Mapping[str, Mapping[str, Sequence[float | None]]], path: Path,
                      title: str) -> Path:
     """CDF of per-run RMSE: `per_run[estimator][vehicle id]` = RMSE of each run."""
-    ids = sorted({vid for by_id in per_run.values() for vid in by_id}, key=int)[:MAX_PANELS]
+    ids = shown_ids(sorted({vid for by_id in per_run.values() for vid in by_id}, key=int))
     fig, axes = figure_panels(max(len(ids), 1), title)
     for ax, vid in zip(axes, ids, strict=False):
         for name, by_id in per_run.items():
@@ -169,7 +180,7 @@ def per_run_rmse_cdf(per_run: Mapping[str, Mapping[str, Sequence[float | None]]]
 def sweep_plot(x: Sequence[float], curves: Mapping[str, Mapping[str, Sequence[float]]],
                path: Path, title: str, xlabel: str, log_x: bool = False) -> Path:
     """`curves[estimator][vehicle id]` = RMSE at each x."""
-    ids = sorted({vid for c in curves.values() for vid in c}, key=int)[:MAX_PANELS]
+    ids = shown_ids(sorted({vid for c in curves.values() for vid in c}, key=int))
     fig, axes = figure_panels(max(len(ids), 1), title)
     for ax, vid in zip(axes, ids, strict=False):
         for name, by_id in curves.items():
@@ -238,7 +249,7 @@ def run_report(summary: Mapping[str, Any], figures: Sequence[tuple[str, str]]) -
     """Short Markdown report of a `cooploc run` results folder."""
     est = summary["estimators"]
     ids = sorted({vid for e in est.values() for vid in e["vehicle_rmse"]}, key=int)
-    shown = ids[:MAX_PANELS]
+    shown = shown_ids(ids)
     notes = run_notes(summary)
     lines = [
         f"# {summary['scenario']}: {summary['runs']} runs, seed {summary['seed']}",
@@ -262,6 +273,8 @@ def run_report(summary: Mapping[str, Any], figures: Sequence[tuple[str, str]]) -
                      + f" | {format_number(e['vehicle_rmse_all'])} | {format_number(e['feature_rmse_all'])}"
                      f" | {format_number(e['steps_per_second'], 4)} |")
     lines.append("")
+    lines += [f"{name} did not use this scenario's {', '.join(e['unused_kinds'])} measurements.\n"
+              for name, e in est.items() if e.get("unused_kinds")]
     if any(e.get("total_rmse") is not None for e in est.values()):  # Zhang 2016 eq. (20), OSPA
         lines += ["| estimator | total error, eq. (20) [m] | OSPA (c = 10 m, p = 2) [m] |", "|---|---|---|"]
         lines += [f"| {name} | {format_number(e.get('total_rmse'))} | {format_number(e.get('ospa'))} |"

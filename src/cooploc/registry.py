@@ -1,8 +1,9 @@
 """The two registries (DESIGN §4–5): estimators by name, scenarios by preset name.
 
 An estimator is a class with `name`, `summary`, `Params`, `needs_truth`,
-`default_preset` (and optionally `required_sensors`) and `step(frame) -> Estimate`; it
-joins the registry through `register_estimator`, usable as a class decorator:
+`default_preset` (and optionally `required_sensors` and `usable_sensors`) and
+`step(frame) -> Estimate`; it joins the registry through `register_estimator`, usable
+as a class decorator:
 
     @register_estimator
     class MyKF:
@@ -26,6 +27,15 @@ Where registrations come from, in order, the first time a registry is read:
 
 `unregister_estimator` / `unregister_scenario` take a registration back (for tests
 and interactive sessions that register throw-away classes).
+
+What an estimator can use. `usable_sensors` maps each measurement kind the method can
+read to the sensor models (`SensorModel.name`, as `Setup.sensors` declares them) it can
+read it from — the model says what the rows mean, e.g. ``"gnss-position"`` rows name
+their vehicle, ``"anonymous-position"`` rows do not. `construct` refuses an estimator
+that can use none of the kinds a scenario offers (it would return its prior and call
+it an estimate), and `unused_kinds` names the kinds it accepts but leaves aside (the
+run's summary and report say so). A class without `usable_sensors` (a plug-in written
+before it existed) is taken to use whatever it is given.
 
 A plug-in that fails to load is reported with a `PluginWarning` and left out, so that
 one broken package does not take `cooploc` down with it.
@@ -60,6 +70,7 @@ __all__ = [
     "register_scenario",
     "unregister_estimator",
     "unregister_scenario",
+    "unused_kinds",
 ]
 
 ESTIMATOR_GROUP = "cooploc.estimators"
@@ -85,7 +96,7 @@ BUILTIN_SCENARIOS = (
     "cooploc.scenarios.sumo",
 )
 
-#: what an estimator class must declare (DESIGN §4; `required_sensors` is optional)
+#: what an estimator class must declare (DESIGN §4; `required_sensors`, `usable_sensors` are optional)
 ESTIMATOR_ATTRIBUTES = ("name", "summary", "Params", "needs_truth", "default_preset", "step")
 
 E = TypeVar("E", bound=type)
@@ -292,14 +303,41 @@ def make_estimator(
     return construct(get_estimator(name), setup, params, rng, truth)
 
 
+def _offered(setup: Setup) -> str:
+    kinds = sorted(setup.sensors.items())
+    return ", ".join(f"{kind} ({getattr(model, 'name', '?')})" for kind, model in kinds) or "none"
+
+
+def unused_kinds(cls: type, setup: Setup) -> tuple[str, ...] | None:
+    """The measurement kinds of `setup` that estimator class `cls` leaves aside (sorted).
+
+    A kind is used when `cls.usable_sensors` lists it with the setup's sensor model for
+    it. None when the class does not declare `usable_sensors`.
+    """
+    usable = getattr(cls, "usable_sensors", None)
+    if usable is None:
+        return None
+    return tuple(kind for kind, model in sorted(setup.sensors.items())
+                 if getattr(model, "name", None) not in usable.get(kind, ()))
+
+
 def construct(cls: type, setup: Setup, params: Params | None, rng: np.random.Generator,
               truth: Truth | None = None) -> Any:
-    """`make_estimator` for a class (registered or not): the checks, then `cls(...)`."""
+    """`make_estimator` for a class (registered or not): the checks, then `cls(...)`.
+
+    Refused with a `ConfigError`: a scenario without a kind in `cls.required_sensors`,
+    or one of whose kinds `cls` can use none (`usable_sensors`, module docstring).
+    """
     name = cls.name
     missing = [kind for kind in getattr(cls, "required_sensors", ()) if kind not in setup.sensors]
     if missing:
         raise ConfigError(f"{name} needs the measurement kinds {', '.join(missing)}, which this scenario "
                           f"does not have (it has: {', '.join(sorted(setup.sensors)) or 'none'})")
+    unused = unused_kinds(cls, setup)
+    if unused is not None and len(unused) == len(setup.sensors):
+        usable = ", ".join(f"{kind} ({' or '.join(models)})" for kind, models in cls.usable_sensors.items())
+        raise ConfigError(f"{name} can use nothing this scenario offers: it reads "
+                          f"{usable or 'none'}; the scenario has {_offered(setup)}")
     params = cls.Params() if params is None else params
     if not isinstance(params, cls.Params):
         raise ConfigError(f"{name}: params must be {cls.Params.__name__}, got {type(params).__name__}")

@@ -150,6 +150,10 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
             "failed_runs": [{"run": f.run, "step": f.step, "error": f.what}
                             for r in result.runs if (f := r.failures.get(spec.name)) is not None],
             "diverged_runs": _diverged_runs(run, table, diverged),
+            # consistency (metrics.nees_band) and what the estimator left aside (registry.unused_kinds)
+            "nees_mean": _finite_or_none(float(np.nanmean(table.nees[vehicles])))
+            if np.isfinite(table.nees[vehicles]).any() else None,
+            "unused_kinds": sorted({k for r in result.runs for k in r.unused_kinds.get(spec.name, ())}),
         }
     return out
 
@@ -181,6 +185,7 @@ def errors_frame(result: ExperimentResult):  # -> pyarrow.Table
             "err_pos": pa.array(table.err_pos, pa.float64()),
             "err_vel": pa.array(table.err_vel, pa.float64(), from_pandas=True),
             "err_heading": pa.array(table.err_heading, pa.float64(), from_pandas=True),
+            "nees": pa.array(table.nees, pa.float64(), from_pandas=True),
         }))
     return pa.concat_tables(parts)
 
@@ -292,6 +297,7 @@ def write_run(run: RunResult, config: ExperimentConfig, folder: str | os.PathLik
         "ospa": {name: values.tolist() for name, values in run.ospa.items()},
         "failures": {name: {"step": f.step, "what": f.what, "traceback": f.traceback}
                      for name, f in run.failures.items()},
+        "unused_kinds": {name: list(kinds) for name, kinds in run.unused_kinds.items()},
     }
     if run.estimates:  # run 0's estimates, for the viewer: straight to the folder
         from cooploc.view.estimates import write_estimates
@@ -322,6 +328,7 @@ def read_runs(folder: str | os.PathLike[str]) -> list[RunResult]:
             ospa={k: np.array(v, dtype=float) for k, v in record["ospa"].items()},
             failures={k: Failure(k, record["run"], f["step"], f["what"], f["traceback"])
                       for k, f in record["failures"].items()},
+            unused_kinds={k: tuple(v) for k, v in record.get("unused_kinds", {}).items()},
         ))
     runs.sort(key=lambda r: r.run)
     return runs

@@ -11,6 +11,11 @@ Known-association references (`needs_truth = True`) also receive an
 `AssociationTruth` — the measurement origins and infrastructure poses of the run, and
 nothing else — so that no estimator can read true states.
 
+`checked_states` turns an estimator's own beliefs into the `StateSet` it reports; where
+its numerics broke (a non-finite mean, a covariance no longer positive definite) it
+raises `EstimatorError` naming the estimator, the entity and what broke — not the
+`InvalidInputError` with an array dump that `StateSet` gives a user's bad input.
+
 `VehicleBeliefs` is the bookkeeping of per-vehicle Gaussian beliefs under traffic:
 vehicles that leave are dropped, vehicles that enter start from their prior in
 `Setup.vehicle_prior` or, failing that, from a broad belief centred on their first
@@ -19,18 +24,21 @@ GNSS fix (`birth_beliefs`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from cooploc.errors import EstimatorError, InvalidInputError
 from cooploc.gaussian import Gaussians, kf_predict
 from cooploc.params import Params
-from cooploc.types import Estimate, FloatArray, Frame, IntArray, MotionModel, Setup
+from cooploc.types import Estimate, FloatArray, Frame, IntArray, MotionModel, Setup, StateSet
 
 __all__ = [
     "Estimator",
     "VehicleBeliefs",
     "birth_beliefs",
+    "checked_states",
     "default_birth_cov",
     "predict_steps",
 ]
@@ -48,8 +56,42 @@ class Estimator(Protocol):
     #: measurement kinds (`Setup.sensors` keys) without which the method cannot run;
     #: `make_estimator` refuses a scenario that lacks one with a `ConfigError`
     required_sensors: ClassVar[tuple[str, ...]]
+    #: measurement kind → the sensor models (`SensorModel.name`) of that kind the method
+    #: can read; `make_estimator` refuses a scenario of which it can use nothing
+    #: (`cooploc.registry.unused_kinds`)
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]]
 
     def step(self, frame: Frame) -> Estimate: ...
+
+
+def checked_states(estimator: str, entities: str, ids: IntArray, mean: FloatArray,
+                   cov: FloatArray) -> StateSet:
+    """`StateSet(ids, mean, cov)` of an estimator's beliefs; `EstimatorError` where they broke.
+
+    `entities` names them in the message ("vehicle", "feature"). A belief that is not
+    finite or whose covariance is not symmetric positive definite is the estimator's
+    numerical failure, not bad input: the error names the first such entity and its
+    smallest and largest covariance eigenvalues, without the arrays.
+    """
+    try:
+        return StateSet(ids, mean, cov)
+    except InvalidInputError:
+        pass
+    mean, cov = np.asarray(mean, dtype=float), np.asarray(cov, dtype=float)
+    finite = np.isfinite(mean).all(axis=1) & np.isfinite(cov).all(axis=(1, 2))
+    if not finite.all():
+        i = int(np.flatnonzero(~finite)[0])
+        raise EstimatorError(estimator, f"the belief of {entities} {int(ids[i])} is not finite (it diverged)")
+    eig = np.linalg.eigvalsh(0.5 * (cov + np.swapaxes(cov, -1, -2)))
+    scale = np.maximum(np.abs(cov).max(axis=(1, 2)), np.finfo(float).tiny)
+    asym = np.abs(cov - np.swapaxes(cov, -1, -2)).max(axis=(1, 2))
+    bad = np.flatnonzero((eig[:, 0] <= np.finfo(float).eps * scale) | (asym > 1e-8 * scale))
+    if bad.size == 0:  # not a numerical failure (ids, shapes): StateSet says what
+        return StateSet(ids, mean, cov)
+    i = int(bad[0])
+    raise EstimatorError(estimator, f"the covariance of {entities} {int(ids[i])} is no longer symmetric "
+                                    f"positive definite (eigenvalues {eig[i, 0]:.3g} … {eig[i, -1]:.3g}): "
+                                    "too ill-conditioned for float64")
 
 
 def default_birth_cov(setup: Setup) -> FloatArray:

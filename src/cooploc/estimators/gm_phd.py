@@ -18,12 +18,14 @@ the reference of tests/test_gm_phd.py.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
 
-from cooploc.estimators.base import default_birth_cov, predict_steps
+from cooploc.errors import EstimatorError
+from cooploc.estimators.base import checked_states, default_birth_cov, predict_steps
 from cooploc.gaussian import Gaussians, symmetrize
 from cooploc.params import Params, param
 from cooploc.particles import log_sum_exp
@@ -147,13 +149,18 @@ class GMPHDParams(Params):
 
 @register_estimator
 class GMPHD:
-    """Gaussian-mixture PHD filter of the anonymous GPS rows (Vo & Ma 2006)."""
+    """Gaussian-mixture PHD filter of the anonymous GPS rows (Vo & Ma 2006).
+
+    Uses: GNSS rows, anonymous or identified (identities are ignored); not the radar.
+    """
 
     name: ClassVar[str] = "gm-phd"
     summary: ClassVar[str] = "Gaussian-mixture PHD filter (Vo & Ma 2006) of anonymous GPS rows"
     Params: ClassVar[type[Params]] = GMPHDParams
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "zhang2016-cv"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("anonymous-position", "gnss-position")}
 
     def __init__(self, setup: Setup, params: GMPHDParams, rng: np.random.Generator) -> None:
         self.setup = setup
@@ -212,9 +219,15 @@ class GMPHD:
         dz = self.H.shape[0]
         z = gnss.z if gnss is not None else np.zeros((0, dz))
         R = gnss.cov if gnss is not None else np.zeros((0, dz, dz))
-        updated = phd_update(mixture, z, R, self.H, self.p_d, self.kappa) if len(mixture) else mixture
-        self.mixture = merge_components(updated, p.prune_threshold, p.merge_threshold,
-                                        p.max_components)
+        try:
+            updated = phd_update(mixture, z, R, self.H, self.p_d, self.kappa) if len(mixture) else mixture
+            self.mixture = merge_components(updated, p.prune_threshold, p.merge_threshold,
+                                            p.max_components)
+        except np.linalg.LinAlgError:
+            eig = np.linalg.eigvalsh(mixture.cov) if len(mixture) else np.ones((1, 1))
+            raise EstimatorError(self.name, "a mixture component's covariance lost positive definiteness in "
+                                 f"the Joseph update (predicted variances {eig.min():.3g} … {eig.max():.3g}, "
+                                 "too far from the rows' for float64)") from None
         self._last_rows = (np.array(z), np.array(R))
         return self._extract(frame)
 
@@ -239,4 +252,5 @@ class GMPHD:
         for t in range(n):  # n ≤ a handful: heaviest first, each pick lowers its weight by one
             picks[t] = int(np.argmax(remaining))
             remaining[picks[t]] -= 1.0
-        return Estimate(StateSet(np.sort(frame.vehicles), m.mean[picks], m.cov[picks]), None, info)
+        vehicles = checked_states(self.name, "vehicle", np.sort(frame.vehicles), m.mean[picks], m.cov[picks])
+        return Estimate(vehicles, None, info)

@@ -7,7 +7,8 @@ Fröhle Fig. 5 it is the K = 0 point.
 
 Each step: drop vehicles that left, start entering ones from their prior, predict all
 others, and update every vehicle with its own GNSS rows (`subject` = its id). Rows with
-an unknown subject (anonymous GNSS) are ignored: this filter cannot associate them. A
+an unknown subject (anonymous GNSS) are ignored: this filter cannot associate them;
+`Estimate.info["gnss_rows_unused"]` counts them (with rows naming an absent vehicle). A
 vehicle with no fix this step is only predicted.
 
 Odometry (where the scenario has an ``odometry`` sensor and batch, e.g. Gulati §IV-A,
@@ -26,16 +27,17 @@ The model and the stochastic cloning written out: docs/gnss_kf.md.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
-from cooploc.estimators.base import VehicleBeliefs
+from cooploc.estimators.base import VehicleBeliefs, checked_states
 from cooploc.gaussian import Gaussians, kf_predict, kf_update
 from cooploc.params import Params
 from cooploc.registry import register_estimator
-from cooploc.types import Batch, Estimate, Frame, Setup, StateSet
+from cooploc.types import Batch, Estimate, Frame, Setup
 
 __all__ = ["GnssKF", "GnssKFParams"]
 
@@ -47,13 +49,20 @@ class GnssKFParams(Params):
 
 @register_estimator
 class GnssKF:
-    """Kalman filter per vehicle from its own GNSS fixes (batched over vehicles)."""
+    """Kalman filter per vehicle from its own GNSS fixes (batched over vehicles).
+
+    Uses: identified GNSS rows (``gnss``, `GnssPosition`: `subject` names the vehicle) and
+    odometry. Anonymous GNSS rows it cannot use: a scenario with only those is refused
+    (`usable_sensors`); V2F, radar and AoA rows are left aside (the run's report says so).
+    """
 
     name: ClassVar[str] = "gnss-kf"
     summary: ClassVar[str] = "non-cooperative Kalman filter per vehicle from GNSS (+ odometry), baseline"
     Params: ClassVar[type[Params]] = GnssKFParams
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "froehle2018"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "odometry": ("odometry",)}
 
     def __init__(self, setup: Setup, params: GnssKFParams, rng: np.random.Generator) -> None:
         self.setup = setup
@@ -92,7 +101,10 @@ class GnssKF:
             beliefs = self._update(beliefs, gnss)
         self.vehicles.beliefs = beliefs
         ids = self.vehicles.ids
-        return Estimate(StateSet(ids, beliefs.mean, beliefs.cov))
+        # rows naming no present vehicle (anonymous ones among them) are said, not hidden
+        unused = 0 if gnss is None else int((~np.isin(gnss.subject, ids)).sum())
+        return Estimate(checked_states(self.name, "vehicle", ids, beliefs.mean, beliefs.cov),
+                        info={"gnss_rows_unused": unused})
 
     def _update_odometry(self, beliefs: Gaussians, previous: Gaussians, moving: np.ndarray,
                          odometry: Batch) -> Gaussians:

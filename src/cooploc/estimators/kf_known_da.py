@@ -18,6 +18,7 @@ The model written out: docs/kf_known_da.md.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -38,7 +39,11 @@ class KFKnownDAParams(Params):
 
 @register_estimator
 class KFKnownDA:
-    """Per-vehicle Kalman filter of anonymous GPS rows given their true association."""
+    """Per-vehicle Kalman filter of anonymous GPS rows given their true association.
+
+    Uses: GNSS rows, anonymous (`AnonymousPosition`, relabelled by their true origin) or
+    identified, and odometry; never the radar (Zhang §4.1).
+    """
 
     name: ClassVar[str] = "kf-known-da"
     summary: ClassVar[str] = ("Kalman filter per vehicle of anonymous GPS rows given their true "
@@ -46,6 +51,8 @@ class KFKnownDA:
     Params: ClassVar[type[Params]] = KFKnownDAParams
     needs_truth: ClassVar[bool] = True
     default_preset: ClassVar[str] = "zhang2016-cv"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("anonymous-position", "gnss-position"), "odometry": ("odometry",)}
 
     def __init__(self, setup: Setup, params: KFKnownDAParams, rng: np.random.Generator, *,
                  truth: AssociationTruth) -> None:

@@ -23,20 +23,17 @@ The model written out: docs/oracle_kf.md.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
-from cooploc.estimators.base import (
-    birth_beliefs,
-    default_birth_cov,
-    predict_steps,
-)
+from cooploc.estimators.base import birth_beliefs, checked_states, default_birth_cov, predict_steps
 from cooploc.gaussian import Gaussians, block_diagonal, kf_update, symmetrize
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
-from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup
 
 __all__ = ["OracleKF", "OracleKFParams"]
 
@@ -56,7 +53,11 @@ class OracleKFParams(Params):
 
 @register_estimator
 class OracleKF:
-    """Joint Kalman filter over all vehicles and features with the true association."""
+    """Joint Kalman filter over all vehicles and features with the true association.
+
+    Uses: identified GNSS rows and V2F rows (their true origins). Anonymous GNSS, radar,
+    odometry and AoA it does not fuse: where a scenario has those it is no bound.
+    """
 
     name: ClassVar[str] = "oracle-kf"
     summary: ClassVar[str] = (
@@ -66,6 +67,8 @@ class OracleKF:
     Params: ClassVar[type[Params]] = OracleKFParams
     needs_truth: ClassVar[bool] = True
     default_preset: ClassVar[str] = "froehle2018"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "v2f": ("relative-position",)}
 
     def __init__(self, setup: Setup, params: OracleKFParams, rng: np.random.Generator, *,
                  truth: AssociationTruth) -> None:
@@ -260,10 +263,12 @@ class OracleKF:
         vstart, fstart = self._blocks()
         vi = vstart[:, None] + np.arange(self.dx)
         v_cov = self.cov[vi[:, :, None], vi[:, None, :]]
-        vehicles = StateSet(self.vehicle_ids, self.mean[vi].reshape(nv, self.dx), v_cov)
+        vehicles = checked_states(self.name, "vehicle", self.vehicle_ids, self.mean[vi].reshape(nv, self.dx),
+                                  v_cov)
         features = None
         if self.df:
             fi = fstart[:, None] + np.arange(self.df)
-            features = StateSet(self.feature_ids, self.mean[fi].reshape(nf, self.df),
-                                self.cov[fi[:, :, None], fi[:, None, :]])
+            features = checked_states(self.name, "feature", self.feature_ids,
+                                      self.mean[fi].reshape(nf, self.df),
+                                      self.cov[fi[:, :, None], fi[:, None, :]])
         return Estimate(vehicles, features, {"state_dim": int(self.mean.size)})

@@ -19,6 +19,7 @@ resampling, vanishing messages, ignored rows): docs/rsu_bp.md.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from cooploc.association import association_weights, bp_association, decide, padded_groups
 from cooploc.errors import ConfigError
-from cooploc.estimators.base import birth_beliefs, predict_steps
+from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -88,7 +89,13 @@ class RsuBPParams(Params):
 
 @register_estimator
 class RsuBP:
-    """Nonparametric BP at the RSU over all vehicles and features, with BP association."""
+    """Nonparametric BP at the RSU over all vehicles and features, with BP association.
+
+    Uses: identified GNSS rows and anonymous V2F rows. Consistency: BP beliefs drop the
+    vehicle–feature correlation every step, so its covariances are optimistic where
+    that correlation matters (long runs); on short froehle2018 runs its time-averaged
+    NEES stays inside the χ² band (tests/test_consistency.py).
+    """
 
     name: ClassVar[str] = "rsu-bp"
     summary: ClassVar[str] = (
@@ -98,6 +105,8 @@ class RsuBP:
     Params: ClassVar[type[Params]] = RsuBPParams
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "froehle2018"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "v2f": ("relative-position",)}
 
     def __init__(self, setup: Setup, params: RsuBPParams, rng: np.random.Generator) -> None:
         self.setup, self.params, self.rng = setup, params, rng
@@ -399,7 +408,7 @@ class RsuBP:
     def _estimate(self, info: dict[str, Any]) -> Estimate:
         N = self.params.n_particles
         v_mean, v_cov = weighted_moments(self.vehicles)
-        vehicles = StateSet(self.vehicle_ids, v_mean, v_cov)
+        vehicles = checked_states(self.name, "vehicle", self.vehicle_ids, v_mean, v_cov)
         v_ess = effective_sample_size(self.vehicles.log_weights)
         info["vehicle_ess"] = v_ess
         features = None
@@ -410,7 +419,7 @@ class RsuBP:
             else:
                 f_mean, f_cov = weighted_moments(self.features)
                 f_ess = effective_sample_size(self.features.log_weights)
-            features = StateSet(self.feature_ids, f_mean, f_cov)
+            features = checked_states(self.name, "feature", self.feature_ids, f_mean, f_cov)
             info["feature_ess"] = f_ess
         elif self.df:
             features = StateSet.empty(self.df)

@@ -31,16 +31,18 @@ reference the tests check ours against. Damping follows GTSAM's default (λI, λ
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
 from cooploc import least_squares
+from cooploc.errors import EstimatorError
 from cooploc.estimators.factor_graph.estimates import EstimateLayout, PositionFilter
 from cooploc.estimators.factor_graph.factors import NEW, OLD
 from cooploc.estimators.factor_graph.graph import GraphData, GraphProblem
-from cooploc.estimators.factor_graph.gtsam_backend import solve_gtsam
+from cooploc.estimators.factor_graph.gtsam_backend import first_sentence, solve_gtsam
 from cooploc.least_squares import LMResult
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
@@ -88,13 +90,15 @@ class _BatchGraph:
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "gulati-2v"
     required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "odometry")
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "odometry": ("odometry",), "radar": ("infrastructure-radar",)}
 
     def __init__(self, setup: Setup, params: FactorGraphParams, rng: np.random.Generator) -> None:
         self.setup, self.params = setup, params
         least_squares.compile_kernels()  # compile (or load from cache) here, not in smooth()
         self.data = GraphData(setup, self.kind, params.gap_variance, params.topology_odometry_noise)
         self.filter = PositionFilter()
-        self.estimates = EstimateLayout(setup)
+        self.estimates = EstimateLayout(setup, self.name)
         self.initial: list[FloatArray] = []   # filtered positions: the smoother's start
 
     def step(self, frame: Frame) -> Estimate:
@@ -114,9 +118,18 @@ class _BatchGraph:
             return LMResult(x0, np.zeros((0, 2, 2)), 0, 0.0)
         settings = {"max_iterations": p.max_iterations, "relative_tolerance": p.relative_tolerance,
                     "absolute_tolerance": p.absolute_tolerance, "lambda_initial": p.lambda_initial}
-        if p.solver == "gtsam":
-            return solve_gtsam(self.data, x0, huber=p.huber, **settings)
-        return least_squares.solve_lm(GraphProblem.of(self.data, p.huber).linearize, x0, **settings)
+        try:
+            if p.solver == "gtsam":
+                return solve_gtsam(self.data, x0, huber=p.huber, **settings)
+            return least_squares.solve_lm(GraphProblem.of(self.data, p.huber).linearize, x0, **settings)
+        except np.linalg.LinAlgError as exc:
+            raise EstimatorError(self.name, "the information matrix of the graph is not positive definite "
+                                 f"in float64 ({exc}): the factor covariances span too many orders of "
+                                 "magnitude") from None
+        except EstimatorError:
+            raise
+        except RuntimeError as exc:  # GTSAM's IndeterminateLinearSystemException
+            raise EstimatorError(self.name, f"GTSAM: {first_sentence(exc)}") from None
 
     def smooth(self) -> list[Estimate]:
         """Smoothed estimate of every step so far (one LM solve of the whole graph)."""
@@ -148,7 +161,10 @@ class FgTopologyNewParams(FactorGraphParams):
 
 @register_estimator
 class FgTopologyOld(_BatchGraph):
-    """Batch LM on GPS, odometry and the old topology factor (eq. 8, Gulati 2016)."""
+    """Batch LM on GPS, odometry and the old topology factor (eq. 8, Gulati 2016).
+
+    Uses: identified GNSS rows, odometry, and the radar rows as topology.
+    """
 
     name: ClassVar[str] = "fg-topology-old"
     Params: ClassVar[type[Params]] = FgTopologyOldParams
@@ -158,7 +174,10 @@ class FgTopologyOld(_BatchGraph):
 
 @register_estimator
 class FgTopologyNew(_BatchGraph):
-    """Batch LM on GPS, odometry and the new topology factor (eqs. 9–16)."""
+    """Batch LM on GPS, odometry and the new topology factor (eqs. 9–16).
+
+    Uses: identified GNSS rows, odometry, and the radar rows as topology.
+    """
 
     name: ClassVar[str] = "fg-topology-new"
     Params: ClassVar[type[Params]] = FgTopologyNewParams

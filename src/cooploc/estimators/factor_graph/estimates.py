@@ -20,9 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from cooploc.estimators.base import checked_states
 from cooploc.estimators.factor_graph.graph import FrameFactors
 from cooploc.gaussian import Gaussians, kf_update
-from cooploc.types import Estimate, FloatArray, IntArray, Setup, StateSet
+from cooploc.types import Estimate, FloatArray, IntArray, Setup
 
 __all__ = ["EstimateLayout", "PositionFilter"]
 
@@ -81,7 +82,8 @@ class PositionFilter:
 class EstimateLayout:
     """Builds `Estimate`s in the setup's layout: positions, velocities, block-diagonal cov."""
 
-    def __init__(self, setup: Setup) -> None:
+    def __init__(self, setup: Setup, estimator: str) -> None:
+        self.estimator = estimator  # names the estimator in its EstimatorError
         layout = setup.vehicle_layout
         self.dim, self.dt = layout.dim, setup.dt
         self.pos = np.array(layout.position)
@@ -109,4 +111,4 @@ class EstimateLayout:
         if self.vel is not None:
             mean[:, self.vel] = vel
             cov[:, self.vel[:, None], self.vel[None, :]] = vel_cov
-        return Estimate(StateSet(ids, mean, cov), info=info)
+        return Estimate(checked_states(self.estimator, "vehicle", ids, mean, cov), info=info)

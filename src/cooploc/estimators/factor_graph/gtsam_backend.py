@@ -27,7 +27,15 @@ from cooploc.estimators.factor_graph.graph import FrameFactors, GraphData
 from cooploc.least_squares import LMResult
 from cooploc.types import FloatArray
 
-__all__ = ["gtsam_factors", "gtsam_graph", "gtsam_values", "solve_gtsam", "topology_custom_factor"]
+__all__ = [
+    "first_sentence", "gtsam_factors", "gtsam_graph", "gtsam_values", "solve_gtsam", "topology_custom_factor",
+]
+
+
+def first_sentence(exc: BaseException) -> str:
+    """The first sentence of an exception's message, on one line (GTSAM's run over a page)."""
+    text = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+    return text.split(". ")[0].rstrip(".") or type(exc).__name__
 
 
 def topology_custom_factor(kind: str, keys_t: list[int], keys_prev: list[int],

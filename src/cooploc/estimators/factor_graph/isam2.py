@@ -20,15 +20,17 @@ bounds the GIL-bound Python cost of the CustomFactors. Time per step:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 
+from cooploc.errors import EstimatorError
 from cooploc.estimators.factor_graph.estimates import EstimateLayout
 from cooploc.estimators.factor_graph.factors import NEW
 from cooploc.estimators.factor_graph.graph import GraphData
-from cooploc.estimators.factor_graph.gtsam_backend import gtsam_factors
+from cooploc.estimators.factor_graph.gtsam_backend import first_sentence, gtsam_factors
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
 from cooploc.types import Estimate, Frame, Setup
@@ -57,7 +59,10 @@ class ISAM2Params(Params):
 
 @register_estimator
 class FgIsam2:
-    """The new-factor graph, updated incrementally with GTSAM's iSAM2; filtered estimates."""
+    """The new-factor graph, updated incrementally with GTSAM's iSAM2; filtered estimates.
+
+    Uses: identified GNSS rows, odometry, and the radar rows as topology.
+    """
 
     name: ClassVar[str] = "fg-isam2"
     summary: ClassVar[str] = "factor graph with the new topology factor, incremental iSAM2 (filtered)"
@@ -65,13 +70,15 @@ class FgIsam2:
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "gulati-2v"
     required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "odometry")
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "odometry": ("odometry",), "radar": ("infrastructure-radar",)}
 
     def __init__(self, setup: Setup, params: ISAM2Params, rng: np.random.Generator) -> None:
         import gtsam
 
         self.setup, self.params = setup, params
         self.data = GraphData(setup, NEW, params.gap_variance, params.topology_odometry_noise)
-        self.estimates = EstimateLayout(setup)
+        self.estimates = EstimateLayout(setup, self.name)
         isam_params = gtsam.ISAM2Params()
         isam_params.setRelinearizeThreshold(params.relinearize_threshold)
         isam_params.relinearizeSkip = params.relinearize_skip
@@ -101,10 +108,16 @@ class FgIsam2:
         values = self._gtsam.Values()
         for v, p in zip(f.vars.tolist(), initial, strict=True):
             values.insert(v, p)
-        self.isam.update(gtsam_factors(self.data, [f], self.params.huber), values)
         keys = f.vars.tolist()
-        pos = np.array([self.isam.calculateEstimatePoint2(v) for v in keys])
-        cov = np.array([self.isam.marginalCovariance(v) for v in keys])
+        try:
+            self.isam.update(gtsam_factors(self.data, [f], self.params.huber), values)
+            pos = np.array([self.isam.calculateEstimatePoint2(v) for v in keys])
+            cov = np.array([self.isam.marginalCovariance(v) for v in keys])
+        except EstimatorError:
+            raise
+        except RuntimeError as exc:  # GTSAM's IndeterminateLinearSystemException
+            raise EstimatorError(self.name, f"GTSAM iSAM2: {first_sentence(exc)} (the factor covariances are "
+                                 "too ill-conditioned or a variable is unconstrained)") from None
         cov = 0.5 * (cov + cov.transpose(0, 2, 1))
         self._last_vars, self._last = f.vars, pos
         return self.estimates.build(f.ids, pos, cov, vel, vel_cov,

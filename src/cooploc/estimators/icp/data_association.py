@@ -108,7 +108,11 @@ class _Association:
 
 @register_estimator
 class ICPDALC(ICP):
-    """`icp-da-lc`: per-vehicle BPA-DA, MAP pairing with threshold, Gaussian BPA-L (Brambilla §IV-D)."""
+    """`icp-da-lc`: per-vehicle BPA-DA, MAP pairing with threshold, Gaussian BPA-L (Brambilla §IV-D).
+
+    Uses what `icp` uses, with the V2F association inferred. Knowingly inconsistent, as
+    `icp` (its Gaussian BPA-L is the same).
+    """
 
     name: ClassVar[str] = "icp-da-lc"
     summary: ClassVar[str] = (

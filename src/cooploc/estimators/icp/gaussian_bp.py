@@ -69,6 +69,7 @@ Derivation of the messages for singular beliefs: docs/icp.md.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -76,6 +77,7 @@ import numpy as np
 
 from cooploc.consensus import GroupConsensus, flood
 from cooploc.errors import ConfigError
+from cooploc.estimators.base import checked_states
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
 from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize, to_information
 from cooploc.network import Network
@@ -164,7 +166,16 @@ class _FeatureCopies:
 
 @register_estimator
 class ICP:
-    """`icp`: Gaussian BPA-L with consensus, known association (Brambilla ref. [40])."""
+    """`icp`: Gaussian BPA-L with consensus, known association (Brambilla ref. [40]).
+
+    Uses: identified GNSS rows and odometry (each vehicle's own filter) and V2F rows of
+    the full relative state.
+
+    Knowingly inconsistent: the BPA-L is Gaussian BP on a loopy graph (vehicles and
+    features), which counts information shared by several V2F rows more than once, so
+    its covariances are over-confident: its time-averaged NEES on brambilla-road lies
+    above the χ² band (tests/test_consistency.py bounds it by 3× the χ²₂ mean).
+    """
 
     name: ClassVar[str] = "icp"
     summary: ClassVar[str] = (
@@ -174,6 +185,8 @@ class ICP:
     Params: ClassVar[type[Params]] = ICPParams
     needs_truth: ClassVar[bool] = True
     default_preset: ClassVar[str] = "brambilla-road"
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position",), "odometry": ("odometry",), "v2f": ("relative-position",)}
     #: whether `info["v2f_track"]` names the estimator's own feature tracks (DA versions)
     names_tracks: ClassVar[bool] = False
 
@@ -220,7 +233,8 @@ class ICP:
             self.local.vehicles.beliefs = posterior
         info.update(network.counters())
         info["bpa_iterations"] = iterations
-        return Estimate(StateSet(agents, posterior.mean, posterior.cov), self._feature_estimates(info), info)
+        vehicles = checked_states(self.name, "vehicle", agents, posterior.mean, posterior.cov)
+        return Estimate(vehicles, self._feature_estimates(info), info)
 
     def _predict_tracks(self, agents: IntArray) -> None:
         """(12): every agent predicts its copies; agents that left drop theirs, new ones start empty."""
@@ -347,4 +361,4 @@ class ICP:
         if not ok.any():
             return StateSet.empty(self.d)
         belief = from_information(Lam[ok], eta[ok])
-        return StateSet(copies.ids[ok], belief.mean, belief.cov)
+        return checked_states(self.name, "feature", copies.ids[ok], belief.mean, belief.cov)

@@ -51,6 +51,7 @@ from typing import ClassVar
 import numpy as np
 
 from cooploc.consensus import GroupConsensus
+from cooploc.estimators.base import checked_states
 from cooploc.estimators.icp.data_association import ICPDALC, ICPDALCParams
 from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf, to_information
 from cooploc.network import Network
@@ -64,7 +65,7 @@ from cooploc.particles import (
     weighted_moments,
 )
 from cooploc.registry import register_estimator
-from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup
 
 __all__ = ["ICPDAPF", "ICPDAPFParams"]
 
@@ -97,7 +98,10 @@ class ICPDAPFParams(ICPDALCParams):
 
 @register_estimator
 class ICPDAPF(ICPDALC):
-    """`icp-da-pf`: BPA-DA, soft-association particle BPA-L with log-likelihood consensus (§IV-C)."""
+    """`icp-da-pf`: BPA-DA, soft-association particle BPA-L with log-likelihood consensus (§IV-C).
+
+    Uses what `icp` uses, with the V2F association inferred.
+    """
 
     name: ClassVar[str] = "icp-da-pf"
     summary: ClassVar[str] = (
@@ -131,7 +135,8 @@ class ICPDAPF(ICPDALC):
                                np.zeros(self.features.Lam.shape[:2], dtype=bool))
         info.update(network.counters())
         info["bpa_iterations"] = iterations
-        return Estimate(StateSet(agents, posterior.mean, posterior.cov), self._feature_estimates(info), info)
+        vehicles = checked_states(self.name, "vehicle", agents, posterior.mean, posterior.cov)
+        return Estimate(vehicles, self._feature_estimates(info), info)
 
     def _particle_step(self, frame: Frame, v2f: Batch, prior: Gaussians, network: Network,
                        info: dict) -> tuple[Gaussians, int]:

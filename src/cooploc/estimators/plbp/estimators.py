@@ -30,13 +30,14 @@ Complexity per step: that of `plbp_solve`, plus O(n dx³) for prediction and fix
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
 
 from cooploc.errors import ConfigError
-from cooploc.estimators.base import VehicleBeliefs
+from cooploc.estimators.base import VehicleBeliefs, checked_states
 from cooploc.estimators.plbp.links import link_factors
 from cooploc.estimators.plbp.solve import plbp_solve
 from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize, to_information
@@ -44,7 +45,7 @@ from cooploc.geometry import wrap_angle
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
 from cooploc.sensors import AngleOfArrival
-from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup
 
 __all__ = ["PLBP", "PLBPParams", "PriorLBP", "PriorLBPParams"]
 
@@ -74,7 +75,15 @@ class PriorLBPParams(PLBPParams):
 
 @register_estimator
 class PLBP:
-    """Posterior-linearization Gaussian BP over AoA links, one solve per frame."""
+    """Posterior-linearization Gaussian BP over AoA links, one solve per frame.
+
+    Uses: AoA rows and identified GNSS fixes (the anchors').
+
+    Knowingly inconsistent: Gaussian BP on the loopy AoA graph counts shared links more
+    than once and each link is linearized, so the covariances are over-confident: its
+    NEES on aoa-grid lies above the χ² band (tests/test_consistency.py bounds it by 2×
+    the χ²₂ mean).
+    """
 
     name: ClassVar[str] = "plbp"
     summary: ClassVar[str] = "AoA cooperative position + heading, posterior-linearization Gaussian BP"
@@ -82,6 +91,8 @@ class PLBP:
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "aoa-grid"
     required_sensors: ClassVar[tuple[str, ...]] = ("aoa",)
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "aoa": ("angle-of-arrival",), "gnss": ("gnss-position",)}
     posterior: ClassVar[bool] = True
 
     def __init__(self, setup: Setup, params: PLBPParams, rng: np.random.Generator) -> None:
@@ -116,7 +127,8 @@ class PLBP:
         iterates[..., self._heading] = wrap_angle(iterates[..., self._heading])
         self.vehicles.beliefs = Gaussians(mean, posterior.cov)
         info: dict[str, Any] = {"iterate_means": iterates, "n_links": len(links)}
-        return Estimate(StateSet(self.vehicles.ids, mean, posterior.cov), info=info)
+        return Estimate(checked_states(self.name, "vehicle", self.vehicles.ids, mean, posterior.cov),
+                        info=info)
 
     def _predict(self, beliefs: Gaussians, moving: np.ndarray) -> Gaussians:
         """Prediction with the motion model of every vehicle that was already there."""
@@ -157,7 +169,10 @@ class PLBP:
 
 @register_estimator
 class PriorLBP(PLBP):
-    """The baseline: the same Gaussian BP, linearized once w.r.t. the priors."""
+    """The baseline: the same Gaussian BP, linearized once w.r.t. the priors.
+
+    Uses what `plbp` uses; knowingly inconsistent for the same reason.
+    """
 
     name: ClassVar[str] = "prior-lbp"
     summary: ClassVar[str] = "AoA cooperative position + heading, Gaussian BP linearized at the priors"

@@ -37,12 +37,13 @@ Complexity per step: O(M N) for the gate of M GPS rows, O(N²) for the maps.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from cooploc.estimators.base import birth_beliefs, default_birth_cov
+from cooploc.estimators.base import birth_beliefs, checked_states, default_birth_cov
 from cooploc.estimators.sme.pseudo_measurement import (
     PseudoMeasurement,
     complex_power_sums,
@@ -50,7 +51,7 @@ from cooploc.estimators.sme.pseudo_measurement import (
     topology,
 )
 from cooploc.params import Params, param
-from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup, StateSet
+from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup
 
 
 @dataclass(frozen=True)
@@ -80,6 +81,8 @@ class _SmeFilter:
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "zhang2016-cv"
     required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "radar")
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("anonymous-position", "gnss-position"), "radar": ("infrastructure-radar",)}
 
     def __init__(self, setup: Setup, params: _SmeParams, rng: np.random.Generator) -> None:
         from scipy.stats import chi2
@@ -171,4 +174,4 @@ class _SmeFilter:
     def _estimate(self, info: dict[str, Any]) -> Estimate:
         mean, cov = self._moments()
         info["set_valued"] = True
-        return Estimate(StateSet(self.ids, mean, cov), None, info)
+        return Estimate(checked_states(self.name, "vehicle", self.ids, mean, cov), None, info)

@@ -89,7 +89,11 @@ class SmePFParams(_SmeParams):
 
 @register_estimator
 class SmePF(_SmeFilter):
-    """SME particle filter over the joint state of all vehicles (the paper's method)."""
+    """SME particle filter over the joint state of all vehicles (the paper's method).
+
+    Uses: GNSS rows (anonymous, or identified with the identities ignored) and the
+    radar's topology; not odometry.
+    """
 
     name: ClassVar[str] = "sme-pf"
     summary: ClassVar[str] = ("symmetric measurement equation particle filter: anonymous GPS "

@@ -18,7 +18,10 @@ van der Merwe 2000) through the stacked pseudo-measurement of eq. (19)
     K = C S⁻¹,  m ← m + K (y − ȳ),  P ← P − K S Kᵀ.
 
 Choice the paper leaves open: when the update loses positive definiteness, the spectrum
-is lifted to 1e-9 (``info["covariance_repaired"]``).
+is lifted to 1e-9 (``info["covariance_repaired"]``). Where the joint covariance has no
+Cholesky factor for the sigma points, or S is singular (the sums of powers lose all
+precision when the belief is far from the rows), the filter raises `EstimatorError`
+saying which.
 
 Complexity per step: O((dx N)³) for the joint covariance and O(dx N · N⁴) for the
 complex moments at the 2 dx N + 1 sigma points.
@@ -31,6 +34,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from cooploc.errors import EstimatorError
 from cooploc.estimators.sme.filter_base import _SmeFilter, _SmeParams
 from cooploc.gaussian import symmetrize
 from cooploc.params import Params, param
@@ -54,7 +58,10 @@ class SmeUKFParams(_SmeParams):
 
 @register_estimator
 class SmeUKF(_SmeFilter):
-    """SME under an unscented Kalman filter over the joint state (§4.2.3 check)."""
+    """SME under an unscented Kalman filter over the joint state (§4.2.3 check).
+
+    Uses: as `sme-pf`, GNSS rows and the radar's topology.
+    """
 
     name: ClassVar[str] = "sme-ukf"
     summary: ClassVar[str] = "symmetric measurement equation under an unscented Kalman filter (check)"
@@ -101,7 +108,13 @@ class SmeUKF(_SmeFilter):
         p = self.params
         d = self.cov.shape[0]
         lam = p.alpha**2 * (d + p.kappa) - d
-        L = np.linalg.cholesky(symmetrize(self.cov) * (d + lam) + 1e-12 * np.eye(d))
+        try:
+            L = np.linalg.cholesky(symmetrize(self.cov) * (d + lam) + 1e-12 * np.eye(d))
+        except np.linalg.LinAlgError:
+            eig = np.linalg.eigvalsh(symmetrize(self.cov))
+            raise EstimatorError(self.name, "the joint covariance has no Cholesky factor for the sigma "
+                                 f"points (eigenvalues {eig[0]:.3g} … {eig[-1]:.3g}: too ill-conditioned "
+                                 "for float64)") from None
         x = self.mean.ravel()
         points = np.concatenate([x[None], x + L.T, x - L.T])
         w_m = np.full(2 * d + 1, 0.5 / (d + lam))
@@ -132,7 +145,13 @@ class SmeUKF(_SmeFilter):
             dX = points.reshape(points.shape[0], -1) - self.mean.ravel()
             S = symmetrize(np.einsum("s,si,sj->ij", w_c, dY, dY) + np.einsum("s,sij->ij", w_m, R))
             C = np.einsum("s,si,sj->ij", w_c, dX, dY)                        # cross-covariance
-            K = np.linalg.solve(S, C.T).T                                    # K = C S⁻¹
+            try:
+                K = np.linalg.solve(S, C.T).T                                # K = C S⁻¹
+            except np.linalg.LinAlgError:
+                raise EstimatorError(self.name, "the innovation covariance of the pseudo-measurement "
+                                     "(eq. 19) is singular: the sigma points' sums of powers lost all "
+                                     "precision (a belief far from the rows, or covariances too far apart "
+                                     "for float64)") from None
             self.mean = (self.mean.ravel() + K @ (y - y_hat)).reshape(self.mean.shape)
             self.cov = symmetrize(self.cov - K @ S @ K.T)
             eig_min = np.linalg.eigvalsh(self.cov).min()
