@@ -96,5 +96,6 @@ from __future__ import annotations
 from cooploc.io.layout import FORMAT_VERSION
 from cooploc.io.load import load_recording
 from cooploc.io.save import save_recording
+from cooploc.io.validate import validate_recording
 
-__all__ = ["FORMAT_VERSION", "load_recording", "save_recording"]
+__all__ = ["FORMAT_VERSION", "load_recording", "save_recording", "validate_recording"]
