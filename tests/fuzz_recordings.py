@@ -422,12 +422,15 @@ def main(argv: list[str] | None = None) -> int:
                     what, outcomes = mutate(base, Path(tmp) / family / "case", family, kind, seed)
                     worst = next((o for o in FAILURES if any(r[1] == o for r in outcomes)), "clean")
                     cases[kind][worst] += 1
+                    refused = bool(outcomes) and outcomes[0][:2] == ("load", "refused")
+                    cases[kind]["refused at load" if refused else "loaded"] += 1
                     for name, outcome, detail in outcomes:
                         counts[kind][outcome] += 1
                         if outcome in FAILURES:
                             failures.append((kind, family, what, name, outcome, detail))
     for kind in counts:
-        print(f"{kind:10s} cases: {dict(cases[kind])}  estimator-runs: {dict(counts[kind])}")
+        print(f"{kind:10s} cases: {sum(cases[kind][o] for o in ('clean', *FAILURES))} "
+              f"{dict(cases[kind])}  estimator-runs: {dict(counts[kind])}")
     if args.verbose:
         for failure in failures:
             print(" | ".join(failure))

@@ -51,8 +51,18 @@ def run(saved: dict[str, Path], family: str, kind: str, seed: int | str) -> None
     assert_no_failure(what, outcomes)
 
 
-@pytest.mark.parametrize("family", FAST_FAMILIES)
-@pytest.mark.parametrize("corruption", sorted(HAND))
+#: the hand-made corruptions run on every family; two families (GNSS + V2F, GNSS +
+#: odometry + radar) in the fast tier, the others marked slow (they still run in CI)
+HAND_FAST = {"froehle2018", "gulati"}
+
+
+def hand_cases() -> list:
+    return [pytest.param(family, corruption, id=f"{family}-{corruption}",
+                         marks=[] if family in HAND_FAST else [pytest.mark.slow])
+            for family in FAST_FAMILIES for corruption in sorted(HAND)]
+
+
+@pytest.mark.parametrize(("family", "corruption"), hand_cases())
 def test_hand_made_corruptions(saved: dict[str, Path], family: str, corruption: str) -> None:
     run(saved, family, "hand", corruption)
 

@@ -24,20 +24,11 @@ from cooploc.io import load_recording, save_recording, validate_recording
 from cooploc.metrics import evaluate
 from cooploc.registry import make_estimator
 from cooploc.testing import preset_recording
+from test_io import edit_setup
 
 
 def saved(tmp_path: Path, preset: str) -> Path:
     return save_recording(preset_recording(preset, 0, {"n_steps": 5}), tmp_path / preset)
-
-
-def edit_setup(folder: Path, **changes: Any) -> None:
-    data = json.loads((folder / "setup.json").read_text())
-    for key, value in changes.items():
-        if value is KeyError:
-            del data[key]
-        else:
-            data[key] = value
-    (folder / "setup.json").write_text(json.dumps(data))
 
 
 def edit_column(folder: Path, file: str, column: str, edit: Any) -> None:
@@ -86,7 +77,7 @@ def test_sensor_of_a_vehicle_absent_at_that_step(tmp_path: Path) -> None:
     edit_column(folder, "truth_vehicles.parquet", "present",
                 lambda values: [False, *values[1:]])   # vehicle 0 absent at step 0 ...
     edit_column(folder, "frames.parquet", "vehicles", lambda values: [[1], *values[1:]])
-    with pytest.raises(InvalidInputError, match=r"step 0, kind 'gnss', row 0: id 0 is absent"):
+    with pytest.raises(InvalidInputError, match=r"step 0, kind 'gnss', row 0: id 0 is a vehicle absent"):
         load_recording(folder)                           # ... but its GNSS fix is there
 
 
@@ -210,3 +201,12 @@ def test_python_built_recordings_are_checked_with_the_same_function() -> None:
     wrong = dataclasses.replace(recording, setup=dataclasses.replace(recording.setup, dt=2.0))
     with pytest.raises(InvalidInputError, match=r"^frames\[k\]\.t: times of steps 0 and 1 "):
         validate_recording(wrong)
+
+
+def test_gnss_of_a_vehicle_missing_from_the_frame(tmp_path: Path) -> None:
+    """Present in the truth but not in `Frame.vehicles`: estimators would not know it."""
+    folder = saved(tmp_path, "gulati-2v")
+    edit_column(folder, "frames.parquet", "vehicles", lambda values: [[] for _ in values])
+    with pytest.raises(InvalidInputError, match=r"column 'sensor': step 0, kind 'gnss', row 0: id 0 "
+                                                r"is a vehicle absent at that step"):
+        load_recording(folder)

@@ -13,8 +13,9 @@ assume these rules; a recording that breaks one is refused here with an
 3. Every batch kind is declared in ``setup.sensors``; its dz equals the sensor model's
    dimension (where the model states one) and is the same at every step.
 4. Vehicle, feature and infrastructure ids are disjoint sets.
-5. Each row's ``sensor`` is −1, a vehicle present at that step, or an infrastructure
-   sensor id; its ``subject`` is −1, a vehicle present at that step, or a feature.
+5. Each row's ``sensor`` is −1, a vehicle of that step's frame (``Frame.vehicles``), or
+   an infrastructure sensor id; its ``subject`` is −1, a vehicle of the frame, or a
+   feature.
 6. Each row's truth ``origin`` is −1 (clutter), a vehicle present at that step, or a
    feature.
 7. Prior ids are ids of the truth's vehicles (features, when the truth has features).
@@ -79,23 +80,29 @@ class _Checker:
         return InvalidInputError(f"{where.file if self.files else where.attribute}: {message}")
 
     def run(self) -> None:
-        setup, truth = self.recording.setup, self.recording.truth
         self.scalars()
         self.times()
         self.ids()
         rows = self.gather_rows()
         self.kinds(rows)
         self.row_ids(rows)
-        vehicles = truth.vehicle_ids
-        missing = np.setdiff1d(setup.vehicle_prior.ids, vehicles)
+        self.priors()
+        self.truth_shapes()
+
+    def priors(self) -> None:
+        setup, truth = self.recording.setup, self.recording.truth
+        missing = np.setdiff1d(setup.vehicle_prior.ids, truth.vehicle_ids)
         if missing.size:
             raise self.fail(_VEHICLE_PRIOR, f"ids {missing.tolist()} match no vehicle of the truth "
-                                            f"(vehicles: {_ids(vehicles)})")
+                                            f"(vehicles: {_ids(truth.vehicle_ids)})")
         if setup.feature_prior is not None and truth.feature_ids.size:
             missing = np.setdiff1d(setup.feature_prior.ids, truth.feature_ids)
             if missing.size:
                 raise self.fail(_FEATURE_PRIOR, f"ids {missing.tolist()} match no feature of the "
                                                 f"truth (features: {_ids(truth.feature_ids)})")
+
+    def truth_shapes(self) -> None:
+        setup, truth = self.recording.setup, self.recording.truth
         if truth.vehicle_states.shape[2] != setup.vehicle_layout.dim:
             raise self.fail(_VEHICLE_STATES, f"{truth.vehicle_states.shape[2]} state components, "
                                              f"setup.vehicle_layout.dim is {setup.vehicle_layout.dim}")
@@ -205,13 +212,20 @@ class _Checker:
         step = rows["step"]
         if step.size == 0:
             return
-        # (step, vehicle) presence: present[step, column of id]
+        # a row's sensor and subject must be among the frame's vehicles (what estimators
+        # see), its origin present in the truth: in_frame / vehicle_present [step, column]
+        frames = recording.frames
+        in_frame = np.zeros(truth.vehicle_present.shape, dtype=bool)
+        in_frame[np.repeat(np.arange(len(frames)), [f.vehicles.size for f in frames]),
+                 lookup_ids(truth.vehicle_ids, np.concatenate([f.vehicles for f in frames]))[0]] = True
         col, known = lookup_ids(truth.vehicle_ids, np.concatenate(
             [rows["sensor"], rows["subject"], rows["origin"]]))
         col = col.reshape(3, -1)
         known = known.reshape(3, -1)
-        steps3 = np.broadcast_to(step, col.shape)
-        present = known & truth.vehicle_present[steps3, col]
+        steps = np.broadcast_to(step, col.shape)
+        present = np.zeros_like(known)
+        for j, table in enumerate((in_frame, in_frame, truth.vehicle_present)):
+            present[j, known[j]] = table[steps[j, known[j]], col[j, known[j]]]
         infrastructure = np.isin(rows["sensor"], np.asarray(setup.infrastructure_ids, np.int64))
         features = self.feature_ids()
         if truth.feature_ids.size == 0 and setup.feature_layout is not None:
@@ -225,9 +239,9 @@ class _Checker:
             origin_feature = np.isin(rows["origin"], features)
         checks = (
             (_SENSOR, rows["sensor"], (rows["sensor"] == -1) | present[0] | infrastructure,
-             "a vehicle present at that step, an infrastructure sensor or -1"),
+             "a vehicle of the frame at that step, an infrastructure sensor or -1"),
             (_SUBJECT, rows["subject"], (rows["subject"] == -1) | present[1] | subject_feature,
-             "a vehicle present at that step, a feature or -1"),
+             "a vehicle of the frame at that step, a feature or -1"),
             (_ORIGIN, rows["origin"], (rows["origin"] == -1) | present[2] | origin_feature,
              "a vehicle present at that step, a feature or -1 (clutter)"),
         )
@@ -236,7 +250,8 @@ class _Checker:
                 i = int(np.flatnonzero(~ok)[0])
                 b = int(rows["batch"][i])
                 row = i - int(np.flatnonzero(rows["batch"] == b)[0])
-                what = "is absent at that step" if known[j, i] else "is no entity of the recording"
+                what = ("is a vehicle absent at that step" if known[j, i]
+                        else "is no entity of the recording")
                 raise self.fail(where, f"step {int(step[i])}, kind {rows['kind'][b]!r}, row {row}: "
                                        f"id {int(ids[i])} {what}; it must be {must}")
 
