@@ -15,7 +15,7 @@ from cooploc.errors import InvalidInputError
 from cooploc.io import load_recording, save_recording
 from cooploc.motion import ConstantTurn, ConstantVelocity
 from cooploc.scenarios import get_preset
-from cooploc.sensors import GnssPosition, RelativePosition
+from cooploc.sensors import GnssPosition, InfrastructureRadar, RelativePosition
 from cooploc.types import Batch, Frame, Recording, Setup, StateLayout, StateSet, Truth
 
 FILES = (
@@ -182,7 +182,8 @@ def hand_built() -> Recording:
         vehicle_prior=StateSet([3], rng.standard_normal((1, 4)), spd(rng, 1, 4)),
         sensors={"gnss": GnssPosition({7: 2.0 * np.eye(2)}, default_cov=spd(rng, 1, 2)[0]),
                  "v2f": RelativePosition(default_cov=np.eye(2) / 3.0),
-                 "odometry": GnssPosition(default_cov=[[0.7]], state_indices=(2,))},
+                 "odometry": GnssPosition(default_cov=[[0.7]], state_indices=(2,)),
+                 "radar": InfrastructureRadar(default_cov=np.eye(3), state_indices=(0, 1, 2))},
         feature_layout=StateLayout.position_velocity(2),
         feature_motion=ConstantVelocity(0.5),
         feature_prior=StateSet.empty(4),
@@ -321,7 +322,9 @@ def edit_setup(folder: Path, **changes: Any) -> None:
         ({"format_version": KeyError}, r"setup\.json: field 'format_version' is missing"),
         ({"format_version": 99}, r"setup\.json: field 'format_version' must be 1, got 99"),
         ({"dt": -0.5}, r"setup\.json: Setup\.dt must be a positive .*-0\.5"),
-        ({"dt": "fast"}, r"setup\.json: .*wrong type"),
+        ({"dt": "fast"}, r"^setup\.json: field 'dt' must be a number, got 'fast'$"),
+        ({"n_steps": True}, r"^setup\.json: field 'n_steps' must be an integer, got True$"),
+        ({"clutter_rate": "2"}, r"^setup\.json: field 'clutter_rate' must be a number, got '2'$"),
         ({"vehicle_motion": {"model": "teleport"}},
          r"setup\.json: field 'vehicle_motion'.*'teleport'"),
         ({"vehicle_layout": {"dim": 4}},
@@ -502,6 +505,8 @@ def test_folder_written_by_hand_from_the_docstring(tmp_path: Path) -> None:
         "vehicle_layout": {"dim": 4, "position": [0, 1], "velocity": [2, 3]},
         "vehicle_motion": {"model": "constant-velocity", "noise_density": 0.1},
         "vehicle_prior": {"ids": [], "mean": [], "cov": [], "dim": 4},
+        "sensors": {"gnss": {"model": "gnss-position", "default_cov": [[4.0, 0.0], [0.0, 4.0]]},
+                    "v2f": {"model": "relative-position", "default_cov": [[1.0, 0.0], [0.0, 1.0]]}},
     }
     (tmp_path / "setup.json").write_text(json.dumps(setup))
     pq.write_table(pa.table({
@@ -534,4 +539,4 @@ def test_folder_written_by_hand_from_the_docstring(tmp_path: Path) -> None:
     assert_same(recording.truth.vehicle_present, np.array([[True, False], [True, True]]),
                 "a missing (step, id) row is an absent vehicle")
     assert recording.truth.feature_states.shape == (2, 0, 0)
-    assert recording.setup.sensors == {} and recording.setup.clutter_rate == 0.0
+    assert set(recording.setup.sensors) == {"gnss", "v2f"} and recording.setup.clutter_rate == 0.0

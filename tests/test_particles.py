@@ -91,6 +91,23 @@ def test_kernel_keeps_range_far_in_the_tail(rng: np.random.Generator) -> None:
                                rtol=1e-6)
 
 
+@pytest.mark.parametrize("offset", [5e5, 5.7e6])
+def test_kernel_is_as_precise_far_from_the_origin(offset: float, rng: np.random.Generator) -> None:
+    """UTM / ECEF magnitudes: translating both particle sets changes no kernel value.
+
+    The reference is the same kernel near the origin (translation cancels in a − c); the
+    stored kernel keeps its float32 tolerance, the fused sum its float64 one.
+    """
+    z, cov, a, c = kernel_case(rng)
+    shift = np.array([offset, -0.7 * offset])
+    near = direct_kernel(z, cov, a, c)
+    far = pair_kernel(z, cov, a + shift, c + shift).dense()
+    np.testing.assert_allclose(far, near, rtol=FLOAT32_RTOL)
+    w = rng.random((3, 7))
+    np.testing.assert_allclose(pair_kernel_log_sum(z, cov, a + shift, c + shift, w),
+                               np.log(np.einsum("bjl,bl->bj", near, w)), rtol=FLOAT64_RTOL, atol=1e-9)
+
+
 def test_kernel_rejects_bad_shapes() -> None:
     with pytest.raises(InvalidInputError, match="pair kernel"):
         pair_kernel(np.zeros((2, 2)), np.eye(2)[None], np.zeros((2, 3, 2)), np.zeros((2, 3, 2)))

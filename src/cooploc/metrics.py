@@ -44,6 +44,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from cooploc.errors import InvalidInputError
 from cooploc.geometry import wrap_angle
 from cooploc.types import (
     Estimate,
@@ -324,6 +325,9 @@ def total_rmse_per_run_and_step(run: IntArray, step: IntArray, err_pos: FloatArr
 def evaluate(recording: Recording, estimates: Sequence[Estimate]) -> ErrorTable:
     """Errors of every estimated vehicle and feature at every step of the recording."""
     truth, setup = recording.truth, recording.setup
+    if len(estimates) > len(recording.frames):
+        raise InvalidInputError(f"evaluate: {len(estimates)} estimates for a recording of "
+                                f"{len(recording.frames)} frames")
     columns: list[tuple] = []
     for k, estimate in enumerate(estimates):
         t = recording.frames[k].t
@@ -340,7 +344,7 @@ def evaluate(recording: Recording, estimates: Sequence[Estimate]) -> ErrorTable:
                 if len(est) == 0:
                     continue
             col, ok = lookup_ids(ids, est.ids)
-            ok &= present[col]  # scored: estimated, known to the truth and present
+            ok[ok] = present[col[ok]]  # scored: estimated, known to the truth and present
             if not ok.any():
                 continue
             e_pos, e_vel, e_head = _entity_errors(est.mean[ok], states[col[ok]], layout)

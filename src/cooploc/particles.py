@@ -303,6 +303,12 @@ def _whiten(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray
             f"pair kernel needs z (B, d), cov (B, d, d), a (B, N_j, d), c (B, N_l, d); got "
             f"{z.shape}, {cov.shape}, {a.shape}, {c.shape}")
     L = np.linalg.cholesky(cov)
+    # Only a − c matters: subtract one particle of c (per block) from both sets, in float64,
+    # so that u and v are of the size of the spread and the pair distances, not of the
+    # absolute position — UTM/ECEF coordinates (10⁵…10⁷ m) would otherwise lose their
+    # metres in the float32 kernel and in ‖u + v‖² (cancellation of two huge numbers).
+    if c.shape[1]:
+        a, c = a - c[:, :1], c - c[:, :1]
     # u = L⁻¹(z − a), v = L⁻¹ c: one batched solve each ((B, d, d) against (B, d, N))
     u = np.ascontiguousarray(np.linalg.solve(L, np.swapaxes(z[:, None, :] - a, 1, 2)).transpose(0, 2, 1))
     vt = np.ascontiguousarray(np.linalg.solve(L, np.swapaxes(c, 1, 2)))          # (B, d, N_l)

@@ -33,7 +33,7 @@ check; a check that cannot apply raises `CheckSkipped` inside and is reported as
 skipped. `run_check` runs one check (what cooploc's own test suite parametrises
 over). The recording surgery the checks use (`with_traffic`, `with_empty_frames`) and
 the assertions (`assert_valid_estimate`, `assert_spd`) are public, for tests of your
-own.
+own; `translated` moves a whole recording (e.g. to UTM magnitudes) for invariance tests.
 """
 
 from __future__ import annotations
@@ -66,6 +66,7 @@ __all__ = [
     "preset_recording",
     "run_check",
     "run_estimator",
+    "translated",
     "with_empty_frames",
     "with_traffic",
 ]
@@ -151,6 +152,60 @@ def with_traffic(recording: Recording, absent: Mapping[int, Iterable[int]],
     setup = recording.setup if keep_prior else dataclasses.replace(
         recording.setup, vehicle_prior=prior.take(at_start))
     return Recording(setup, frames, new_truth)
+
+
+#: sensor models whose rows are absolute positions (they move with a translation);
+#: relative, radar-frame, odometry and angle rows do not
+ABSOLUTE_POSITION_SENSORS = ("gnss-position", "anonymous-position")
+
+
+def translated(recording: Recording, offset: Sequence[float]) -> Recording:
+    """The same run with the world moved by `offset` (m, one entry per position axis).
+
+    Moved: true vehicle and feature positions (present entries), priors, infrastructure
+    sensor poses, and the position components of every row of a sensor in
+    `ABSOLUTE_POSITION_SENSORS`. Relative measurements (V2F), radar rows (in the radar's
+    own frame, whose pose moves), odometry and angles are unchanged, and so is
+    `Setup.clutter_region` (a box in a sensor's frame or the world's, depending on the
+    scenario; estimators use only its area).
+    """
+    setup, truth = recording.setup, recording.truth
+    offset = np.asarray(offset, dtype=float)
+
+    def move(states: np.ndarray, layout: Any, where: np.ndarray | None = None) -> np.ndarray:
+        out = np.array(states, dtype=float)
+        if layout is None or out.size == 0:
+            return out
+        shift = np.zeros(out.shape[-1])
+        shift[list(layout.position)] = offset
+        return out + (shift if where is None else where[..., None] * shift)
+
+    def move_prior(prior: StateSet | None, layout: Any) -> StateSet | None:
+        return None if prior is None else StateSet(prior.ids, move(prior.mean, layout), prior.cov)
+
+    frames = []
+    for frame in recording.frames:
+        batches = {}
+        for kind, batch in frame.batches.items():
+            model = setup.sensors.get(kind)
+            if getattr(model, "name", None) in ABSOLUTE_POSITION_SENSORS:
+                shift = np.zeros(batch.dim)
+                for column, index in enumerate(model.state_indices):
+                    if index in setup.vehicle_layout.position:
+                        shift[column] = offset[setup.vehicle_layout.position.index(index)]
+                batch = Batch(batch.z + shift, batch.cov, batch.sensor, batch.subject)
+            batches[kind] = batch
+        frames.append(Frame(frame.k, frame.t, frame.vehicles, batches, frame.links))
+    poses = np.array(truth.sensor_poses)
+    poses[:, :2] += offset[:2]
+    new_setup = dataclasses.replace(
+        setup, vehicle_prior=move_prior(setup.vehicle_prior, setup.vehicle_layout),
+        feature_prior=move_prior(setup.feature_prior, setup.feature_layout))
+    new_truth = dataclasses.replace(
+        truth, vehicle_states=move(truth.vehicle_states, setup.vehicle_layout, truth.vehicle_present),
+        feature_states=move(truth.feature_states, setup.feature_layout, truth.feature_present),
+        sensor_poses=poses)
+    return Recording(new_setup, frames, new_truth)
 
 
 def with_empty_frames(

@@ -1,7 +1,11 @@
 """Save and load a `Recording` as a folder of Parquet tables and one JSON file.
 
 Modules: `layout` (file names, format version), `save` (`save_recording`), `load`
-(`load_recording`, with the checks that name the file and field of bad input).
+(`load_recording`, with the checks that name the file and field of bad input),
+`validate` (`validate_recording`: does a well-formed recording mean what it says — ids
+of entities that exist, declared kinds, times ``dt`` apart, …; run by `load_recording`,
+and callable on a `Recording` built in Python; rules in `cooploc.io.validate` and
+``docs/recordings.md``).
 
 This is also the format in which users bring their own data: write the six files
 below (with pyarrow, pandas, polars, …) and `load_recording(folder)` gives a
@@ -30,7 +34,9 @@ Folder layout (format version 1)
 Required: ``format_version``, ``dt``, ``n_steps``, ``vehicle_layout``,
 ``vehicle_motion``, ``vehicle_prior``; the others default to the `Setup` defaults
 (no sensors, no features, P_D = 1, no clutter, no infrastructure). Floats are written
-with Python's shortest round-trip repr, so they load back bit for bit.
+with Python's shortest round-trip repr, so they load back bit for bit; an infinite float
+inside ``sensors`` (a radar's unlimited ``max_range``) is the string ``"inf"``, so the
+file stays strict JSON.
 
 ``frames.parquet`` — one row per step (in any order):
 
@@ -88,7 +94,8 @@ Writing one by hand, e.g. the measurements of one GNSS fix::
 
 Truth origins are stored per measurement row, so an origin entry for a kind that has
 no batch at that step is not kept. Extra columns are ignored when reading. A missing
-file or malformed content raises `InvalidInputError` naming the file and the field.
+file, malformed content, or content that cannot mean what it says (`validate`) raises
+`InvalidInputError` naming the file and the field (and the step and value).
 """
 
 from __future__ import annotations
@@ -96,5 +103,6 @@ from __future__ import annotations
 from cooploc.io.layout import FORMAT_VERSION
 from cooploc.io.load import load_recording
 from cooploc.io.save import save_recording
+from cooploc.io.validate import validate_recording
 
-__all__ = ["FORMAT_VERSION", "load_recording", "save_recording"]
+__all__ = ["FORMAT_VERSION", "load_recording", "save_recording", "validate_recording"]

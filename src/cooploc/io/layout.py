@@ -7,6 +7,7 @@ import re
 __all__ = [
     "FORMAT_VERSION",
     "FRAMES_FILE",
+    "INFINITY",
     "MEASUREMENTS_FILE",
     "SENSOR_POSES_FILE",
     "SETUP_FILE",
@@ -26,3 +27,7 @@ SENSOR_POSES_FILE = "sensor_poses.parquet"
 
 #: the state columns x_0 … x_{d−1} of the truth tables
 STATE_COLUMN = re.compile(r"x_(\d+)")
+
+#: how setup.json spells infinite floats (strict JSON has no Infinity), e.g. a radar's
+#: unlimited ``max_range``; read back inside ``sensors`` only
+INFINITY = {"inf": float("inf"), "-inf": float("-inf")}

@@ -21,6 +21,7 @@ from cooploc.errors import InvalidInputError
 from cooploc.io.layout import (
     FORMAT_VERSION,
     FRAMES_FILE,
+    INFINITY,
     MEASUREMENTS_FILE,
     SENSOR_POSES_FILE,
     SETUP_FILE,
@@ -28,6 +29,7 @@ from cooploc.io.layout import (
     TRUTH_FEATURES_FILE,
     TRUTH_VEHICLES_FILE,
 )
+from cooploc.io.validate import validate_recording
 from cooploc.motion import motion_from_dict
 from cooploc.sensors import sensor_from_dict
 from cooploc.types import (
@@ -70,7 +72,7 @@ def load_recording(folder: str | Path) -> Recording:
     except InvalidInputError as exc:
         raise InvalidInputError(f"truth tables of {str(folder)!r}: {exc}") from exc
     try:
-        return Recording(setup, frames, truth)
+        return validate_recording(Recording(setup, frames, truth), files=True)
     except InvalidInputError as exc:
         raise InvalidInputError(f"recording {str(folder)!r} is inconsistent: {exc}") from exc
 
@@ -130,17 +132,28 @@ def _load_setup(path: Path) -> Setup:
     sensors = {}
     for kind, spec in sensors_raw.items():
         with _field_errors(file, f"sensors.{kind}"):
-            sensors[kind] = sensor_from_dict(spec)
+            sensors[kind] = sensor_from_dict(_decode_infinity(spec))
     with _field_errors(file, "infrastructure_ids"):
         infrastructure_ids = tuple(int(i) for i in data.get("infrastructure_ids", ()))
     description = data.get("description", "")
     if not isinstance(description, str):
         raise InvalidInputError(f"{file}: field 'description' must be a string, "
                                 f"got {description!r}")
+    def number(key: str, default: Any = None, *, integer: bool = False) -> Any:
+        value = need(key) if default is None else data.get(key, default)
+        kinds = (int,) if integer else (int, float)
+        if isinstance(value, bool) or not isinstance(value, kinds):
+            raise InvalidInputError(f"{file}: field {key!r} must be "
+                                    f"{'an integer' if integer else 'a number'}, got {value!r}")
+        return value
+
+    dt, n_steps = number("dt"), number("n_steps", integer=True)
+    detection_probability = number("detection_probability", 1.0)
+    clutter_rate = number("clutter_rate", 0.0)
     try:
         return Setup(
-            dt=need("dt"),
-            n_steps=need("n_steps"),
+            dt=dt,
+            n_steps=n_steps,
             vehicle_layout=vehicle_layout,
             vehicle_motion=vehicle_motion,
             vehicle_prior=vehicle_prior,
@@ -149,16 +162,27 @@ def _load_setup(path: Path) -> Setup:
             feature_motion=optional("feature_motion", motion_from_dict),
             feature_prior=optional("feature_prior", StateSet.from_dict),
             birth_cov=optional("birth_cov", lambda v: np.asarray(v, dtype=np.float64)),
-            detection_probability=data.get("detection_probability", 1.0),
-            clutter_rate=data.get("clutter_rate", 0.0),
+            detection_probability=detection_probability,
+            clutter_rate=clutter_rate,
             clutter_region=optional("clutter_region", lambda v: np.asarray(v, dtype=np.float64)),
             infrastructure_ids=infrastructure_ids,
             description=description,
         )
     except InvalidInputError as exc:
         raise InvalidInputError(f"{file}: {exc}") from exc
-    except (TypeError, ValueError) as exc:  # e.g. "dt": "fast" reaching np.isfinite
-        raise InvalidInputError(f"{file}: a scalar field has the wrong type ({exc})") from exc
+    except (TypeError, ValueError) as exc:  # a safety net: every scalar is type-checked above
+        raise InvalidInputError(f"{file}: a field has the wrong type ({exc})") from exc
+
+
+def _decode_infinity(value: Any) -> Any:
+    """The strings "inf" / "-inf" that `save_recording` writes for infinite floats, as floats."""
+    if isinstance(value, dict):
+        return {key: _decode_infinity(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [_decode_infinity(item) for item in value]
+    if isinstance(value, str) and value in INFINITY:
+        return INFINITY[value]
+    return value
 
 
 def _read_table(folder: Path, file: str) -> pa.Table:

@@ -16,6 +16,7 @@ from cooploc.errors import InvalidInputError
 from cooploc.io.layout import (
     FORMAT_VERSION,
     FRAMES_FILE,
+    INFINITY,
     MEASUREMENTS_FILE,
     SENSOR_POSES_FILE,
     SETUP_FILE,
@@ -70,6 +71,17 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} is not JSON serialisable")
 
 
+def _encode_infinity(value: Any) -> Any:
+    """Infinite floats (a radar's unlimited range) as the strings of `layout.INFINITY`."""
+    if isinstance(value, dict):
+        return {key: _encode_infinity(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_encode_infinity(item) for item in value]
+    if isinstance(value, (float, np.floating)) and np.isinf(value):
+        return next(text for text, number in INFINITY.items() if number == value)
+    return value
+
+
 def _prior_to_dict(prior: StateSet | None) -> dict[str, Any] | None:
     if prior is None:
         return None
@@ -89,7 +101,7 @@ def _setup_to_dict(setup: Setup) -> dict[str, Any]:
         "vehicle_layout": setup.vehicle_layout.to_dict(),
         "vehicle_motion": setup.vehicle_motion.to_dict(),
         "vehicle_prior": _prior_to_dict(setup.vehicle_prior),
-        "sensors": {kind: sensor.to_dict() for kind, sensor in setup.sensors.items()},
+        "sensors": {kind: _encode_infinity(sensor.to_dict()) for kind, sensor in setup.sensors.items()},
         "feature_layout": optional(setup.feature_layout),
         "feature_motion": optional(setup.feature_motion),
         "feature_prior": _prior_to_dict(setup.feature_prior),
