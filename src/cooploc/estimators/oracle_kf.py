@@ -26,6 +26,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from cooploc.budget import Sizes
 from cooploc.estimators.base import (
     birth_beliefs,
     default_birth_cov,
@@ -64,6 +65,13 @@ class OracleKF:
     Params: ClassVar[type[Params]] = OracleKFParams
     needs_truth: ClassVar[bool] = True
     default_preset: ClassVar[str] = "froehle2018"
+
+    @staticmethod
+    def memory_bytes(sizes: Sizes, params: OracleKFParams) -> float:
+        """Peak memory of the joint state (`cooploc.budget`): the dense D × D covariance
+        and the few D × D products of one Joseph update, D = state_dim × (S + K)."""
+        dim = sizes.state_dim * (sizes.n_vehicles + sizes.n_features)
+        return 4 * 8.0 * dim**2
 
     def __init__(self, setup: Setup, params: OracleKFParams, rng: np.random.Generator, *,
                  truth: AssociationTruth) -> None:
