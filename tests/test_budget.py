@@ -110,3 +110,15 @@ def test_every_bound_runs_cleanly_or_is_refused_in_one_line(preset):
             errors = result.errors[FAMILIES[preset]]
             assert np.all(np.isfinite(errors.err_pos)), (key, value)
     assert len(refused) <= 5, refused  # cross-field checks (block_size <= grid_size ...) only
+
+
+def test_time_floor_grows_with_the_cube_of_the_joint_state():
+    from cooploc.budget import duration, estimate_seconds
+
+    assert estimate_seconds(_config(names=("gnss-kf",), runs=20)) == 0.0  # declares nothing
+    small = estimate_seconds(_config(names=("oracle-kf",), overrides={"n_features": 98}, runs=4,
+                                     backend="serial"))
+    large = estimate_seconds(_config(names=("oracle-kf",), overrides={"n_features": 198}, runs=4,
+                                     backend="serial"))
+    np.testing.assert_allclose(large / small, 8.0)  # D = 4 (2 + K): (800 / 400)³, exact arithmetic
+    assert duration(90) == "1.5 min" and duration(2 * 86400) == "2 days"

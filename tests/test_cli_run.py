@@ -218,3 +218,13 @@ def test_huge_sizes_are_refused_with_the_memory_estimate(args, sixteen_gb, no_ru
 def test_overflowing_values_are_refused_with_the_range(setting, no_runs):
     key = setting.split("=")[0]
     _one_line_error(_run("froehle2018", "-e", "gnss-kf", "--set", setting), f"{key} must lie in")
+
+
+def test_a_long_experiment_is_announced_before_it_starts(monkeypatch, tmp_path):
+    def stop(*args, **kwargs):
+        raise cooploc.experiment.ConfigError("stopped by the test")
+    monkeypatch.setattr(cooploc.experiment, "run_experiment", stop)
+    result = _run("froehle2018", "-e", "oracle-kf", "--set", "n_features=1000", "--runs", "20",
+                  "--workers", "2", "--out", str(tmp_path), "--no-progress")
+    assert "note: this experiment needs at least" in result.output and "days of computing" in result.output
+    assert "stopped by the test" in result.output  # the note came before the run

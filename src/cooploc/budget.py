@@ -1,4 +1,4 @@
-"""Memory budget of an experiment, checked before any work starts (issue 16, item 6).
+"""Memory and time budget of an experiment, checked before any work starts (issue 16, item 6).
 
 A Monte Carlo experiment that cannot fit in memory should be refused in one line with
 the estimate and what the machine has, not run for hours until `MemoryError`. The
@@ -9,7 +9,8 @@ themselves; where one says nothing, nothing of it is counted (so no check):
   features of one run (for traffic that comes and goes: how many are ever present);
 - an estimator class may define ``memory_bytes(sizes, params) -> float``: the peak of
   its own state beyond the estimates it returns (e.g. `oracle-kf`'s dense joint
-  covariance, (state dimension)² floats).
+  covariance, (state dimension)² floats), and ``flops_per_step(sizes, params) -> float``:
+  the floating-point operations of one step (its dense linear algebra).
 
 The model of where memory goes (constants below measured with `tracemalloc` on the
 paper presets, rounded down so that only what surely does not fit is refused):
@@ -18,7 +19,9 @@ paper presets, rounded down so that only what surely does not fit is refused):
   the run, and the largest estimator state;
 - the main process holds the error table of every finished run and a task per run.
 
-Time is not estimated: estimator speed depends too much on the data to promise it.
+Time is a floor too: the declared operations at `FLOPS` per worker (an estimator that
+declares none counts as free). It is not refused — a long study may be meant — but the
+command line states it before starting when it exceeds an hour, and in a memory refusal.
 Available memory is `MemAvailable` of /proc/meminfo, else the physical memory the
 operating system reports; where neither is known, no check.
 """
@@ -35,7 +38,7 @@ from cooploc.registry import get_estimator
 if TYPE_CHECKING:
     from cooploc.experiment import ExperimentConfig
 
-__all__ = ["Sizes", "available_memory", "check_memory", "estimate_memory"]
+__all__ = ["Sizes", "available_memory", "check_memory", "estimate_memory", "estimate_seconds"]
 
 #: recording of one run, per entity and step (truth, measurements, frame objects)
 RECORDING_BYTES = 200
@@ -46,6 +49,8 @@ ESTIMATE_BYTES = 40
 RESULT_BYTES = 10
 #: task tuple, future and bookkeeping of one run in the main process
 TASK_BYTES = 1000
+#: floating-point operations per second of one worker with BLAS (rounded up: times are floors)
+FLOPS = 1e10
 
 
 @dataclass(frozen=True)
@@ -69,7 +74,8 @@ def estimate_memory(config: ExperimentConfig) -> tuple[float, str]:
         return 0.0, ""
     sizes: Sizes = sizes_of()
     n_est = len(config.estimators)
-    states = {spec.name: _estimator_bytes(spec.name, sizes, spec.params) for spec in config.estimators}
+    states = {spec.name: _declared(spec.name, "memory_bytes", sizes, spec.params)
+              for spec in config.estimators}
     largest = max(states, key=states.__getitem__)
     if config.backend == "serial":
         workers = 1
@@ -88,9 +94,29 @@ def estimate_memory(config: ExperimentConfig) -> tuple[float, str]:
     return sum(parts.values()), max(parts, key=parts.__getitem__)
 
 
-def _estimator_bytes(name: str, sizes: Sizes, params: Any) -> float:
-    memory = getattr(get_estimator(name), "memory_bytes", None)
-    return 0.0 if memory is None else float(memory(sizes, params))
+def estimate_seconds(config: ExperimentConfig) -> float:
+    """A floor of the wall-clock seconds of `config`: declared operations at `FLOPS` per worker."""
+    sizes_of = getattr(config.scenario_params, "sizes", None)
+    if sizes_of is None:
+        return 0.0
+    sizes: Sizes = sizes_of()
+    flops = sum(_declared(spec.name, "flops_per_step", sizes, spec.params) for spec in config.estimators)
+    workers = 1 if config.backend == "serial" else config.workers or os.cpu_count() or 1
+    return config.runs * sizes.n_steps * flops / FLOPS / min(workers, config.runs)
+
+
+def _declared(name: str, hook: str, sizes: Sizes, params: Any) -> float:
+    """What estimator `name` declares through `hook` (0 where it declares nothing)."""
+    method = getattr(get_estimator(name), hook, None)
+    return 0.0 if method is None else float(method(sizes, params))
+
+
+def duration(seconds: float) -> str:
+    """Seconds as a person says them: "40 s", "3.2 h", "2.1 years"."""
+    for unit, length in (("years", 365.25 * 86400), ("days", 86400), ("h", 3600), ("min", 60)):
+        if seconds >= length:
+            return f"{seconds / length:.2g} {unit}"
+    return f"{seconds:.2g} s"
 
 
 def available_memory() -> int | None:
@@ -114,8 +140,10 @@ def check_memory(config: ExperimentConfig) -> None:
     have = available_memory()
     if have is None or need <= have:
         return
+    seconds = estimate_seconds(config)
+    also = f" and at least {duration(seconds)} of computing" if seconds >= 3600 else ""
     raise ConfigError(f"{config.scenario}: this experiment needs about {_size(need)} of memory "
-                      f"(mostly {dominant}), this machine has {_size(have)} available; "
+                      f"(mostly {dominant}){also}, this machine has {_size(have)} available; "
                       f"lower --runs, --workers or the scenario's sizes")
 
 

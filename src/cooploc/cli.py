@@ -171,7 +171,7 @@ def run(
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Run estimators on a scenario for N Monte Carlo runs and write a results folder."""
-    from cooploc.budget import check_memory
+    from cooploc.budget import check_memory, duration, estimate_seconds
     from cooploc.experiment import ExperimentConfig, run_experiment
     from cooploc.results import write_results
 
@@ -199,6 +199,9 @@ def run(
         folder = Path(out) if out is not None else Path("results") / cfg.scenario
     check_memory(cfg)
     check_out(folder, cfg, overwrite)
+    seconds = estimate_seconds(cfg)
+    if seconds >= 3600:  # not refused (a long study may be meant), but said before it starts
+        typer.echo(f"note: this experiment needs at least {duration(seconds)} of computing", err=True)
     result = run_experiment(cfg, progress=progress)
     write_results(result, folder)
     _print_summary(folder)

@@ -73,6 +73,13 @@ class OracleKF:
         dim = sizes.state_dim * (sizes.n_vehicles + sizes.n_features)
         return 4 * 8.0 * dim**2
 
+    @staticmethod
+    def flops_per_step(sizes: Sizes, params: OracleKFParams) -> float:
+        """Operations of one step (`cooploc.budget`): the joint prediction and Joseph update
+        multiply D × D matrices a few times, ~ 4 D³."""
+        dim = sizes.state_dim * (sizes.n_vehicles + sizes.n_features)
+        return 4.0 * dim**3
+
     def __init__(self, setup: Setup, params: OracleKFParams, rng: np.random.Generator, *,
                  truth: AssociationTruth) -> None:
         self.setup, self.params, self.truth = setup, params, truth
