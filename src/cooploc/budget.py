@@ -38,7 +38,7 @@ from cooploc.registry import get_estimator
 if TYPE_CHECKING:
     from cooploc.experiment import ExperimentConfig
 
-__all__ = ["Sizes", "available_memory", "check_memory", "estimate_memory", "estimate_seconds"]
+__all__ = ["Sizes", "available_memory", "check_memory", "duration", "estimate_memory", "estimate_seconds"]
 
 #: recording of one run, per entity and step (truth, measurements, frame objects)
 RECORDING_BYTES = 200
