@@ -40,7 +40,7 @@ def _numbers(folder) -> dict:
 @pytest.mark.parametrize("backend", ["serial", "processes"])
 def test_run_to_folder_equals_run_experiment_and_write_results(tmp_path, backend):
     reference = write_results(run_experiment(_config()), tmp_path / "reference")
-    config = _config(backend=backend, workers=2)
+    config = _config(backend=backend, workers=None if backend == "serial" else 2)
     folder = run_to_folder(config, tmp_path / backend)
     assert (folder / "errors.parquet").read_bytes() == (reference / "errors.parquet").read_bytes()
     assert _numbers(folder) == _numbers(reference)

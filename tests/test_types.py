@@ -470,11 +470,12 @@ def test_overrides_unknown_key_lists_valid_keys() -> None:
         ({"gnss_variances": ""},
          r"froehle2018: gnss_variances must have at least one entry, got \(\)"),
         ({"gnss_variances": "1,-2"},
-         r"froehle2018: gnss_variances must be positive, got \(1\.0, -2\.0\)"),
+         r"froehle2018: gnss_variances must have every entry in \[1e-12, 1\.6e\+15\] m², "
+         r"got \(1\.0, -2\.0\)"),
         ({"gnss_variances": "1,2,3"},
          r"froehle2018: gnss_variances must have at most n_vehicles = 2 entries, "
          r"got \(1\.0, 2\.0, 3\.0\)"),
-        ({"dt": "nan"}, r"froehle2018: dt must be > 0, got nan"),
+        ({"dt": "nan"}, r"froehle2018: dt must lie in \(0, 3600\], got nan"),
         ({"dt": "fast"}, r"froehle2018: dt must be a number, got 'fast'"),
         ({"detection_probability": "1.5"},
          r"froehle2018: detection_probability must lie in \(0, 1\], got 1\.5"),

@@ -45,10 +45,12 @@ def _clean_errors(fn: F) -> F:
 def _pairs(items: list[str], option: str) -> dict[str, str]:
     out: dict[str, str] = {}
     for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip():
+        key, sep, value = (part.strip() for part in item.partition("="))
+        if not sep or not key:
             raise ConfigError(f"{option} takes key=value, got {item!r}")
-        out[key.strip()] = value.strip()
+        if key in out:  # the last one winning would silently drop the first
+            raise ConfigError(f"{option} gives {key!r} twice: {out[key]!r} and {value!r}")
+        out[key] = value
     return out
 
 
@@ -60,6 +62,57 @@ def _estimator_pairs(items: list[str]) -> dict[str, dict[str, str]]:
             raise ConfigError(f"--est-set takes EST.key=value, got {key}={value!r}")
         out.setdefault(name, {})[field] = value
     return out
+
+
+def _read_config(path: Path) -> dict[str, Any]:
+    """The table of a config.toml given to --config."""
+    if not path.is_file():
+        raise ConfigError(f"--config: no such file {str(path)!r}")
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # pragma: no cover - Python 3.10
+        import tomli as tomllib
+    try:
+        return tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"--config: {path} is not valid TOML: {exc}") from None
+
+
+def _on_command_line(ctx: typer.Context, name: str) -> bool:
+    """Whether option `name` was typed (not left at its default)."""
+    source = ctx.get_parameter_source(name)  # typer's own click: compare by name, not identity
+    return source is not None and source.name == "COMMANDLINE"
+
+
+def check_out(folder: Path, config: Any, overwrite: bool) -> None:
+    """Refuse, before any run, an output folder that cannot be written or that holds the
+    results of another configuration (unless `overwrite`).
+
+    A folder holding a summary.json or config.toml is a results folder; it may be written
+    over only by the same experiment (`ExperimentConfig.same_experiment`: backend and
+    workers aside). The folder is created and a probe file written and removed in it.
+    """
+    import tempfile
+
+    from cooploc.experiment import ExperimentConfig
+
+    if folder.exists() and not folder.is_dir():
+        raise ConfigError(f"--out: {str(folder)!r} is a file, not a folder")
+    marks = [folder / "summary.json", folder / "config.toml"]
+    if not overwrite and any(m.exists() for m in marks):
+        try:
+            previous = ExperimentConfig.from_dict(_read_config(marks[1]))
+        except CooplocError:
+            previous = None
+        if previous is None or not previous.same_experiment(config):
+            raise ConfigError(f"{folder} holds the results of another configuration (see its config.toml); "
+                              f"give --overwrite to replace them, or another --out")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"--out: cannot write to {str(folder)!r}: {exc.strerror or exc}") from None
 
 
 @app.command("list")
@@ -95,6 +148,7 @@ def list_cmd() -> None:
 @app.command()
 @_clean_errors
 def run(
+    ctx: typer.Context,
     scenario: Annotated[str, typer.Argument(help="Scenario preset, see `cooploc list`.")] = "",
     estimator: Annotated[list[str], typer.Option("-e", "--estimator",
                                                  help="Estimator to run (repeat).")] = [],  # noqa: B006
@@ -103,29 +157,38 @@ def run(
     set_: Annotated[list[str], typer.Option("--set", help="Scenario parameter key=value.")] = [],  # noqa: B006
     est_set: Annotated[list[str], typer.Option("--est-set",
                                                help="Estimator parameter EST.key=value.")] = [],  # noqa: B006
-    out: Annotated[Path | None, typer.Option(help="Results folder [default: results/SCENARIO].")] = None,
+    out: Annotated[str | None, typer.Option(
+        help="Results folder \\[default: results/SCENARIO, or the folder of --config].")] = None,
     backend: Annotated[str, typer.Option(help="serial, processes or dask.")] = "processes",
-    workers: Annotated[int | None, typer.Option(help="Worker processes [default: all cores].")] = None,
-    config: Annotated[Path | None, typer.Option(help="Rerun a config.toml of a results folder.")] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="Worker processes, for processes and dask \\[default: all cores].")] = None,
+    config: Annotated[Path | None, typer.Option(
+        help="Rerun the config.toml of a results folder, into that folder; -e, --runs, --seed, --set, "
+             "--est-set, --backend and --workers given with it override the file's values.")] = None,
+    overwrite: Annotated[bool, typer.Option(
+        help="Write over a results folder of another configuration (the same configuration "
+             "may always be rerun into its own folder).")] = False,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
     view: Annotated[bool, typer.Option("--view", help="Also write view.html (see `cooploc view`).")] = False,
 ) -> None:
     """Run estimators on a scenario for N Monte Carlo runs and write a results folder."""
+    from cooploc.budget import check_memory, duration, estimate_seconds
     from cooploc.experiment import ExperimentConfig
     from cooploc.results import run_to_folder
 
+    if out is not None and not out.strip():
+        raise ConfigError(f"--out must name a folder, got {out!r}")
     if config is not None:
-        if not config.is_file():
-            raise ConfigError(f"--config: no such file {str(config)!r}")
-        if sys.version_info >= (3, 11):
-            import tomllib
-        else:  # pragma: no cover - Python 3.10
-            import tomli as tomllib
-        try:
-            data = tomllib.loads(config.read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"--config: {config} is not valid TOML: {exc}") from None
-        cfg = ExperimentConfig.from_dict(data)
+        cfg = ExperimentConfig.from_dict(_read_config(config))
+        if scenario and scenario != cfg.scenario:
+            raise ConfigError(f"scenario {scenario!r} differs from {cfg.scenario!r} of --config {config}; "
+                              f"leave it out to rerun the file's")
+        given = {name: value for name, value in (("runs", runs), ("seed", seed), ("backend", backend),
+                                                  ("workers", workers))
+                 if _on_command_line(ctx, name)}
+        cfg = cfg.with_overrides(estimator or None, scenario_overrides=_pairs(set_, "--set"),
+                                 estimator_overrides=_estimator_pairs(est_set), **given)
+        folder = Path(out) if out is not None else config.parent
     else:
         if not scenario:
             raise ConfigError("name a scenario (see `cooploc list`) or give --config")
@@ -134,7 +197,12 @@ def run(
             estimator_overrides=_estimator_pairs(est_set), runs=runs, seed=seed,
             backend=backend, workers=workers,
         )
-    folder = out or Path("results") / cfg.scenario
+        folder = Path(out) if out is not None else Path("results") / cfg.scenario
+    check_memory(cfg)
+    check_out(folder, cfg, overwrite)
+    seconds = estimate_seconds(cfg)
+    if seconds >= 3600:  # not refused (a long study may be meant), but said before it starts
+        typer.echo(f"note: this experiment needs at least {duration(seconds)} of computing", err=True)
     try:
         run_to_folder(cfg, folder, progress=progress)  # run by run: Ctrl-C keeps the finished runs
     except KeyboardInterrupt:
@@ -151,31 +219,43 @@ def _print_summary(folder: Path) -> None:
     import json
 
     summary = json.loads((folder / "summary.json").read_text())
-    table = Table(title=f"{summary['scenario']}: {summary['runs']} runs, seed {summary['seed']}")
-    table.add_column("estimator")
-    from cooploc.plots import shown_ids
-
-    ids = shown_ids(sorted({v for e in summary["estimators"].values() for v in e["vehicle_rmse"]}, key=int))
-    for vid in ids:
-        table.add_column(f"vehicle {vid} RMSE \\[m]", justify="right")
-    table.add_column("all vehicles \\[m]", justify="right")
-    table.add_column("steps/s", justify="right")
-    for name, est in summary["estimators"].items():
-        cells = [f"{est['vehicle_rmse'][v]:.3f}" if v in est["vehicle_rmse"] else "–"
-                 for v in ids]
-        all_v = est["vehicle_rmse_all"]
-        sps = est["steps_per_second"]
-        table.add_row(name, *cells, "–" if all_v is None else f"{all_v:.3f}",
-                      "–" if sps is None else f"{sps:.0f}")
-    console = Console()
-    console.print(table)
     from rich.markup import escape
 
-    from cooploc.plots import run_notes
+    from cooploc.plots import run_notes, shown_ids
 
+    ids = sorted({v for e in summary["estimators"].values() for v in e["vehicle_rmse"]}, key=int)
+    candidates = shown_ids(ids)  # evenly spread over the ids, not only the first few
+    console = Console()
+    # Names and numbers are never cut: vehicle columns are left out until the table fits.
+    for shown in range(len(candidates), -1, -1):
+        table = _summary_table(summary, candidates[:shown])
+        needed = sum(c.min_width or 0 for c in table.columns) + 3 * len(table.columns) + 1  # + borders
+        if shown == 0 or needed <= console.width:
+            break
+    if len(ids) > shown:
+        table.caption = f"{shown} of {len(ids)} vehicles shown; all in summary.json"
+    console.print(table, width=max(console.width, needed), crop=False)
     for note in run_notes(summary):  # failed / diverged estimator-runs, an unfinished experiment
         console.print(f"[bold red]![/] {escape(note)}", highlight=False)
     console.print(f"results: {folder}/ (summary.json, errors.parquet, config.toml, report.md, figures)")
+
+
+def _summary_table(summary: dict[str, Any], ids: list[str]) -> Table:
+    """The terminal table of a summary: RMSE of the vehicles `ids`, pooled RMSE, speed."""
+    table = Table(title=f"{summary['scenario']}: {summary['runs']} runs, seed {summary['seed']}")
+    rows = []
+    for name, est in summary["estimators"].items():
+        all_v, sps = est["vehicle_rmse_all"], est["steps_per_second"]
+        rows.append([name, *(f"{est['vehicle_rmse'][v]:.3f}" if v in est["vehicle_rmse"] else "–"
+                             for v in ids),
+                     "–" if all_v is None else f"{all_v:.3f}", "–" if sps is None else f"{sps:.0f}"])
+    headers = ["estimator", *(f"vehicle {v} RMSE \\[m]" for v in ids), "all vehicles \\[m]", "steps/s"]
+    for i, header in enumerate(headers):
+        widest = max([len(row[i]) for row in rows] + [len(w) for w in header.replace("\\", "").split()])
+        table.add_column(header, justify="left" if i == 0 else "right", no_wrap=i == 0, min_width=widest)
+    for row in rows:
+        table.add_row(*row)
+    return table
 
 
 @app.command("view")
@@ -199,24 +279,24 @@ def view_cmd(
 @_clean_errors
 def reproduce(
     paper: Annotated[str, typer.Argument(help="Paper experiment, see `cooploc list`.")],
-    runs: Annotated[int | None, typer.Option(help="Runs per point [default: the paper's].")] = None,
+    runs: Annotated[int | None, typer.Option(help="Runs per point \\[default: the paper's].")] = None,
     seed: Annotated[int, typer.Option(help="The one seed of every number.")] = 0,
     out: Annotated[Path | None,
-                   typer.Option(help="Output folder [default: results/reproduce-PAPER].")] = None,
+                   typer.Option(help="Output folder \\[default: results/reproduce-PAPER].")] = None,
     backend: Annotated[str, typer.Option(help="serial, processes or dask.")] = "processes",
-    workers: Annotated[int | None, typer.Option(help="Worker processes.")] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="Worker processes, for processes and dask \\[default: all cores].")] = None,
     quick: Annotated[bool, typer.Option(help="Small version to check the pipeline.")] = False,
     progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
 ) -> None:
     """Reproduce a paper's figures: PNG files and a Markdown report beside the paper's numbers."""
-    from cooploc.experiment import BACKENDS
+    from cooploc.experiment import ExperimentConfig
     from cooploc.reproduce import ReproduceOptions, get_experiment
 
     experiment = get_experiment(paper)
     if runs is not None and runs < 1:
         raise ConfigError(f"runs must be a positive integer, got {runs}")
-    if backend not in BACKENDS:
-        raise ConfigError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+    ExperimentConfig.check_backend(backend, workers)
     folder = out or Path("results") / f"reproduce-{paper}"
     experiment.run(ReproduceOptions(folder, runs, seed, backend, workers, quick, progress))
     Console().print(f"{experiment.title}: report at {folder / 'report.md'}")

@@ -190,10 +190,14 @@ class Params:
     def from_dict(cls: type[P], data: Mapping[str, Any]) -> P:
         unknown = sorted(set(data) - set(cls.keys()))
         if unknown:
-            raise ConfigError(
-                f"{cls.owner()}: unknown key {unknown[0]!r}; valid keys: {', '.join(cls.keys())}"
-            )
+            raise cls._unknown_key(unknown[0])
         return cls(**dict(data))
+
+    @classmethod
+    def _unknown_key(cls, key: str) -> ConfigError:
+        if not cls.keys():
+            return ConfigError(f"{cls.owner()}: unknown key {key!r}; {cls.owner()} has no parameters")
+        return ConfigError(f"{cls.owner()}: unknown key {key!r}; valid keys: {', '.join(cls.keys())}")
 
     def with_overrides(self: P, overrides: Mapping[str, Any]) -> P:
         """A copy with fields replaced; string values are parsed by the field's type."""
@@ -201,9 +205,7 @@ class Params:
         changes: dict[str, Any] = {}
         for key, raw in overrides.items():
             if key not in hints or key not in self.keys():
-                raise ConfigError(
-                    f"{self.owner()}: unknown key {key!r}; valid keys: {', '.join(self.keys())}"
-                )
+                raise self._unknown_key(key)
             try:
                 changes[key] = _parse(raw, hints[key]) if isinstance(raw, str) else raw
             except (TypeError, ValueError) as exc:

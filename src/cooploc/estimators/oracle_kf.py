@@ -29,6 +29,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from cooploc.budget import Sizes
 from cooploc.estimators.base import birth_beliefs, checked_states, default_birth_cov, predict_steps
 from cooploc.gaussian import Gaussians, block_diagonal, kf_update, symmetrize
 from cooploc.params import Params, param
@@ -69,6 +70,20 @@ class OracleKF:
     default_preset: ClassVar[str] = "froehle2018"
     usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
         "gnss": ("gnss-position",), "v2f": ("relative-position",)}
+
+    @staticmethod
+    def memory_bytes(sizes: Sizes, params: OracleKFParams) -> float:
+        """Peak memory of the joint state (`cooploc.budget`): the dense D × D covariance
+        and the few D × D products of one Joseph update, D = state_dim × (S + K)."""
+        dim = sizes.state_dim * (sizes.n_vehicles + sizes.n_features)
+        return 4 * 8.0 * dim**2
+
+    @staticmethod
+    def flops_per_step(sizes: Sizes, params: OracleKFParams) -> float:
+        """Operations of one step (`cooploc.budget`): the joint prediction and Joseph update
+        multiply D × D matrices a few times, ~ 4 D³."""
+        dim = sizes.state_dim * (sizes.n_vehicles + sizes.n_features)
+        return 4.0 * dim**3
 
     def __init__(self, setup: Setup, params: OracleKFParams, rng: np.random.Generator, *,
                  truth: AssociationTruth) -> None:

@@ -67,9 +67,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cooploc.budget import Sizes
 from cooploc.motion import RandomWalk
 from cooploc.params import Params, param
 from cooploc.registry import Preset, register_scenario
+from cooploc.scenarios import limits
 from cooploc.sensors import AngleOfArrival, GnssPosition
 from cooploc.types import Frame, Recording, Setup, StateLayout, StateSet, Truth
 
@@ -106,28 +108,35 @@ class AoaGridParams(Params):
 
     n_vehicles: int = param(51, ge=1)
     n_anchors: int = param(6, ge=0)
-    grid_size: float = param(50.0, gt=0)
-    block_size: float = param(50.0, gt=0)
+    grid_size: float = param(50.0, gt=0, le=limits.LENGTH)
+    block_size: float = param(50.0, gt=0, le=limits.LENGTH)
     lanes: int = param(3, ge=1)
-    lane_width: float = param(3.5, ge=0)
-    communication_radius: float = param(30.0, gt=0)
-    aoa_variance: float = param(0.10, gt=0)
+    lane_width: float = param(3.5, ge=0, le=limits.LENGTH)
+    communication_radius: float = param(30.0, gt=0, le=limits.LENGTH)
+    aoa_variance: float = param(0.10, ge=limits.VARIANCE_MIN, le=limits.ANGLE_VARIANCE)
     field_of_view: float = param(np.pi / 3, gt=0, le=np.pi / 2, must="lie in (0, π/2] rad")
-    prior_position_std: float = param(5.0, gt=0)
-    prior_heading_std: float = param(0.35, gt=0)
-    anchor_position_std: float = param(0.1, gt=0)
-    anchor_heading_std: float = param(0.01, gt=0)
+    prior_position_std: float = param(5.0, ge=limits.STD_MIN, le=limits.LENGTH)
+    prior_heading_std: float = param(0.35, ge=limits.STD_MIN, le=limits.ANGLE)
+    anchor_position_std: float = param(0.1, ge=limits.STD_MIN, le=limits.LENGTH)
+    anchor_heading_std: float = param(0.01, ge=limits.STD_MIN, le=limits.ANGLE)
     n_steps: int = param(1, ge=1)
-    dt: float = param(0.1, gt=0)
-    speed_min: float = param(1.0, ge=0)
+    dt: float = param(0.1, gt=0, le=limits.STEP)
+    speed_min: float = param(1.0, ge=0, le=limits.SPEED)
     speed_max: float = 5.0
-    motion_position_density: float = param(2.5, ge=0)
-    motion_heading_density: float = param(0.01, ge=0)
+    motion_position_density: float = param(2.5, ge=0, le=limits.NOISE_DENSITY)
+    motion_heading_density: float = param(0.01, ge=0, le=limits.ANGLE_VARIANCE)
 
     def validate(self) -> None:
         self.require(self.block_size <= self.grid_size, "block_size", f"be <= grid_size = {self.grid_size}")
+        # one street per block: more than 10⁴ a side is no road map and fills memory
+        self.require(self.grid_size <= 1e4 * self.block_size, "block_size",
+                     f"be >= grid_size / 10⁴ = {self.grid_size / 1e4:g} (at most 10⁴ streets a side)")
         self.require(bool(np.isfinite(self.speed_max)) and self.speed_max >= self.speed_min, "speed_max",
                      f"be >= speed_min = {self.speed_min}")
+
+    def sizes(self) -> Sizes:
+        """Steps, vehicles and features of one run (for `cooploc.budget`)."""
+        return Sizes(self.n_steps, self.n_vehicles, state_dim=LAYOUT.dim)
 
 
 def anchor_ids(params: AoaGridParams) -> np.ndarray:

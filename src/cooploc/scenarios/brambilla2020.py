@@ -60,9 +60,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cooploc.budget import Sizes
 from cooploc.motion import CVAccelerationInput, CVVelocityNoise, simulate
 from cooploc.params import Params, param
 from cooploc.registry import Preset, register_scenario
+from cooploc.scenarios import limits
 from cooploc.sensors import GnssPosition, RelativePosition
 from cooploc.types import Frame, Recording, Setup, StateLayout, StateSet, Truth
 
@@ -105,30 +107,39 @@ class BrambillaParams(Params):
     cluster_size: int = param(3, ge=1)
     n_features: int = param(20, ge=0)
     n_steps: int = param(32, ge=1)
-    dt: float = param(1.0, gt=0)
-    speed: float = param(50.0 * KMH, gt=0)
-    sigma_accel_along: float = param(0.35, ge=0)
-    sigma_accel_cross: float = param(0.001, ge=0)
-    gnss_position_std: float = param(9.0, gt=0)
-    gnss_velocity_std: float = param(0.25, gt=0)
-    v2f_position_std: float = param(0.1, gt=0)
-    v2f_velocity_std: float = param(0.1, gt=0)
-    communication_range: float = param(250.0, gt=0)
-    sensing_range: float = param(75.0, gt=0)
-    feature_spacing: float = param(3.0, ge=0)
-    feature_speed: float = param(0.0, ge=0)
-    feature_radius: float = param(150.0, gt=0)
-    headway: float = param(5.0, gt=0)
-    cluster_headway: float = param(20.0, gt=0)
-    road_start: float = param(40.0, ge=0)
-    start_distance: float = param(210.0, ge=0)
-    lane_offset: float = param(1.75, ge=0)
-    sidewalk_offset: float = param(8.0, ge=0)
-    start_position_std: float = param(1.0, gt=0)
-    start_speed_std: float = param(0.5, gt=0)
+    dt: float = param(1.0, gt=0, le=limits.STEP)
+    speed: float = param(50.0 * KMH, gt=0, le=limits.SPEED)
+    sigma_accel_along: float = param(0.35, ge=0, le=limits.ACCELERATION)
+    sigma_accel_cross: float = param(0.001, ge=0, le=limits.ACCELERATION)
+    gnss_position_std: float = param(9.0, ge=limits.STD_MIN, le=limits.LENGTH)
+    gnss_velocity_std: float = param(0.25, ge=limits.STD_MIN, le=limits.SPEED)
+    v2f_position_std: float = param(0.1, ge=limits.STD_MIN, le=limits.LENGTH)
+    v2f_velocity_std: float = param(0.1, ge=limits.STD_MIN, le=limits.SPEED)
+    communication_range: float = param(250.0, gt=0, le=limits.LENGTH)
+    sensing_range: float = param(75.0, gt=0, le=limits.LENGTH)
+    feature_spacing: float = param(3.0, ge=0, le=limits.LENGTH)
+    feature_speed: float = param(0.0, ge=0, le=limits.SPEED)
+    feature_radius: float = param(150.0, gt=0, le=limits.LENGTH)
+    headway: float = param(5.0, gt=0, le=limits.LENGTH)
+    cluster_headway: float = param(20.0, gt=0, le=limits.LENGTH)
+    road_start: float = param(40.0, ge=0, le=limits.LENGTH)
+    start_distance: float = param(210.0, ge=0, le=limits.LENGTH)
+    lane_offset: float = param(1.75, ge=0, le=limits.LENGTH)
+    sidewalk_offset: float = param(8.0, ge=0, le=limits.LENGTH)
+    start_position_std: float = param(1.0, ge=limits.STD_MIN, le=limits.LENGTH)
+    start_speed_std: float = param(0.5, ge=limits.STD_MIN, le=limits.SPEED)
     detection_probability: float = param(1.0, gt=0, le=1)
-    clutter_rate: float = param(0.0, ge=0)
-    clutter_extent: float = param(75.0, gt=0)
+    clutter_rate: float = param(0.0, ge=0, le=limits.CLUTTER_RATE)
+    clutter_extent: float = param(75.0, gt=0, le=limits.LENGTH)
+
+    def validate(self) -> None:
+        # crossroad features are drawn between the sidewalk and this radius
+        self.require(self.feature_radius >= self.sidewalk_offset, "feature_radius",
+                     f"be >= sidewalk_offset = {self.sidewalk_offset}")
+
+    def sizes(self) -> Sizes:
+        """Steps, vehicles and features of one run (for `cooploc.budget`)."""
+        return Sizes(self.n_steps, self.n_vehicles, self.n_features)
 
 
 def v2v_links(ids: np.ndarray, positions: np.ndarray, communication_range: float) -> np.ndarray:

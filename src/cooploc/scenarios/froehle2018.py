@@ -47,9 +47,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cooploc.budget import Sizes
 from cooploc.motion import ConstantVelocity, simulate, simulate_backward
 from cooploc.params import Params, param
 from cooploc.registry import Preset, register_scenario
+from cooploc.scenarios import limits
 from cooploc.sensors import GnssPosition, RelativePosition
 from cooploc.types import Frame, Recording, Setup, StateLayout, StateSet, Truth
 
@@ -83,22 +85,28 @@ class FroehleParams(Params):
     n_vehicles: int = param(2, ge=1)
     n_features: int = param(3, ge=0)
     n_steps: int = param(501, ge=1)
-    dt: float = param(0.5, gt=0)
-    noise_density: float = param(0.1, gt=0)
-    gnss_variances: tuple[float, ...] = param((0.01, 15.0), gt=0, must="be positive")
-    v2f_variance: float = param(1.0, gt=0)
-    feature_init_variance: float = param(0.25, gt=0)
-    vehicle_position_std: float = param(10.0, gt=0)
-    vehicle_velocity_std: float = param(1.0, gt=0)
+    dt: float = param(0.5, gt=0, le=limits.STEP)
+    noise_density: float = param(0.1, gt=0, le=limits.NOISE_DENSITY)
+    gnss_variances: tuple[float, ...] = param(
+        (0.01, 15.0), ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE,
+        must=f"have every entry in [{limits.VARIANCE_MIN:g}, {limits.LENGTH_VARIANCE:g}] m²")
+    v2f_variance: float = param(1.0, ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE)
+    feature_init_variance: float = param(0.25, ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE)
+    vehicle_position_std: float = param(10.0, ge=limits.STD_MIN, le=limits.LENGTH)
+    vehicle_velocity_std: float = param(1.0, ge=limits.STD_MIN, le=limits.SPEED)
     detection_probability: float = param(1.0, gt=0, le=1)
-    clutter_rate: float = param(0.0, ge=0)
-    clutter_extent: float = param(50.0, gt=0)
+    clutter_rate: float = param(0.0, ge=0, le=limits.CLUTTER_RATE)
+    clutter_extent: float = param(50.0, gt=0, le=limits.LENGTH)
     shuffle: bool = True
 
     def validate(self) -> None:
         self.require(len(self.gnss_variances) >= 1, "gnss_variances", "have at least one entry")
         self.require(len(self.gnss_variances) <= self.n_vehicles, "gnss_variances",
                      f"have at most n_vehicles = {self.n_vehicles} entries")
+
+    def sizes(self) -> Sizes:
+        """Steps, vehicles and features of one run (for `cooploc.budget`)."""
+        return Sizes(self.n_steps, self.n_vehicles, self.n_features)
 
     def gnss_variance_of(self, vehicle: int) -> float:
         return self.gnss_variances[min(vehicle, len(self.gnss_variances) - 1)]

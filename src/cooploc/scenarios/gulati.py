@@ -39,9 +39,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cooploc.budget import Sizes
 from cooploc.motion import ConstantVelocity, simulate
 from cooploc.params import Params, param
 from cooploc.registry import Preset, register_scenario
+from cooploc.scenarios import limits
 from cooploc.sensors import GnssPosition, InfrastructureRadar, Odometry
 from cooploc.types import Batch, Frame, Recording, Setup, StateLayout, StateSet, Truth
 
@@ -71,17 +73,21 @@ class GulatiParams(Params):
 
     n_vehicles: int = param(2, ge=1)
     n_steps: int = param(250, ge=1)
-    dt: float = param(1.0, gt=0)
-    gnss_variance: float = param(9.0, gt=0)
-    odometry_variance: float = param(1.0, gt=0)
-    radar_variance: float = param(0.1, gt=0)
-    noise_density: float = param(1.0, ge=0)
-    start_position_std: float = param(50.0, gt=0)
-    start_velocity_std: float = param(5.0, gt=0)
-    radar_extent: float = param(100.0, gt=0)
+    dt: float = param(1.0, gt=0, le=limits.STEP)
+    gnss_variance: float = param(9.0, ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE)
+    odometry_variance: float = param(1.0, ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE)
+    radar_variance: float = param(0.1, ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE)
+    noise_density: float = param(1.0, ge=0, le=limits.NOISE_DENSITY)
+    start_position_std: float = param(50.0, ge=limits.STD_MIN, le=limits.LENGTH)
+    start_velocity_std: float = param(5.0, ge=limits.STD_MIN, le=limits.SPEED)
+    radar_extent: float = param(100.0, gt=0, le=limits.LENGTH)
     detection_probability: float = param(1.0, gt=0, le=1)
-    clutter_rate: float = param(0.0, ge=0)
-    clutter_extent: float = param(200.0, gt=0)
+    clutter_rate: float = param(0.0, ge=0, le=limits.CLUTTER_RATE)
+    clutter_extent: float = param(200.0, gt=0, le=limits.LENGTH)
+
+    def sizes(self) -> Sizes:
+        """Steps, vehicles and features of one run (for `cooploc.budget`)."""
+        return Sizes(self.n_steps, self.n_vehicles)
 
 
 def generate(params: GulatiParams, rng: np.random.Generator) -> Recording:

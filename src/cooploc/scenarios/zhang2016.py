@@ -63,9 +63,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cooploc.budget import Sizes
 from cooploc.motion import ConstantTurn, ConstantVelocity
 from cooploc.params import Params, param
 from cooploc.registry import Preset, register_scenario
+from cooploc.scenarios import limits
 from cooploc.sensors import AnonymousPosition, InfrastructureRadar
 from cooploc.types import Frame, Recording, Setup, StateLayout, StateSet, Truth
 
@@ -113,22 +115,29 @@ class ZhangParams(Params):
 
     n_vehicles: int = param(5, ge=1, le=5)
     n_steps: int = param(100, ge=1)
-    dt: float = param(1.0, gt=0)
-    process_noise_std: float = param(0.5, gt=0)
-    truth_noise_std: float = param(0.0, ge=0)
+    dt: float = param(1.0, gt=0, le=limits.STEP)
+    process_noise_std: float = param(0.5, ge=limits.STD_MIN, le=limits.ACCELERATION)
+    truth_noise_std: float = param(0.0, ge=0, le=limits.ACCELERATION)
     turn_rates: tuple[float, ...] = param((), finite=True, must="be finite")
-    gnss_variance: float = param(0.5, gt=0)
-    radar_variance: float = param(0.1, gt=0)
-    prior_position_variance: float = param(2.5, gt=0)
-    prior_velocity_variance: float = param(1.0, gt=0)
-    radar_extent: float = param(100.0, gt=0)
+    gnss_variance: float = param(0.5, ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE)
+    radar_variance: float = param(0.1, ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE)
+    prior_position_variance: float = param(2.5, ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE)
+    prior_velocity_variance: float = param(1.0, ge=limits.VARIANCE_MIN, le=limits.SPEED_VARIANCE)
+    radar_extent: float = param(100.0, gt=0, le=limits.LENGTH)
     detection_probability: float = param(1.0, gt=0, le=1)
-    clutter_rate: float = param(0.0, ge=0)
-    radar_clutter_extent: float = param(300.0, gt=0)
+    clutter_rate: float = param(0.0, ge=0, le=limits.CLUTTER_RATE)
+    radar_clutter_extent: float = param(300.0, gt=0, le=limits.LENGTH)
 
     def validate(self) -> None:
+        # 0 is the noise-free paths; a spread below STD_MIN squares to a singular covariance
+        self.require(self.truth_noise_std == 0 or self.truth_noise_std >= limits.STD_MIN, "truth_noise_std",
+                     f"be 0 or lie in [{limits.STD_MIN:g}, {limits.ACCELERATION:g}]")
         self.require(len(self.turn_rates) <= self.n_vehicles, "turn_rates",
                      f"have at most n_vehicles = {self.n_vehicles} entries")
+
+    def sizes(self) -> Sizes:
+        """Steps, vehicles and features of one run (for `cooploc.budget`)."""
+        return Sizes(self.n_steps, self.n_vehicles)
 
     def turn_rate_of(self, vehicle: int) -> float:
         return self.turn_rates[vehicle] if vehicle < len(self.turn_rates) else 0.0

@@ -18,7 +18,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from cooploc.budget import Sizes
 from cooploc.params import Params, param
+from cooploc.scenarios import limits
 
 __all__ = [
     "GRID",
@@ -39,9 +41,6 @@ GRID = "grid"
 REGULATIONS = ("tlr", "vsr")
 STATIC_FEATURE_ID_OFFSET = 1_000_000
 PEDESTRIAN_ID_OFFSET = 2_000_000
-_THREE_ZONES = "be three positive numbers (zones A, B, C)"
-
-
 @dataclass(frozen=True)
 class SumoParams(Params):
     """Parameters of a SUMO traffic run; defaults follow Brambilla 2020 §VI where it says.
@@ -75,41 +74,48 @@ class SumoParams(Params):
     network: str = param(GRID, choices=(GRID, *NETWORKS))
     regulation: str = param("tlr", choices=REGULATIONS)
     grid_size: int = param(3, ge=2)
-    grid_length: float = param(100.0, gt=0)
-    area_half_width: float = param(500.0, gt=0)
-    duration: float = param(300.0, gt=0)
-    warmup: float = param(120.0, ge=0)
-    dt: float = param(0.75, gt=0)
-    vehicle_period: float = param(2.0, gt=0)
-    pedestrian_period: float = param(10.0, ge=0)
-    fringe_factor: float = param(10.0, gt=0)
-    traffic_seed: int = param(-1, ge=-1)
-    pole_spacing: float = param(60.0, gt=0)
-    min_feature_spacing: float = param(20.0, gt=0)
+    grid_length: float = param(100.0, gt=0, le=limits.LENGTH)
+    area_half_width: float = param(500.0, gt=0, le=limits.LENGTH)
+    duration: float = param(300.0, gt=0, le=limits.DAY)
+    warmup: float = param(120.0, ge=0, le=limits.DAY)
+    dt: float = param(0.75, gt=0, le=limits.STEP)
+    vehicle_period: float = param(2.0, gt=0, le=limits.DAY)
+    pedestrian_period: float = param(10.0, ge=0, le=limits.DAY)
+    fringe_factor: float = param(10.0, gt=0, le=1e6)  # randomTrips weight: 10⁶ is all fringe already
+    traffic_seed: int = param(-1, ge=-1, le=2**31 - 1)  # SUMO's --seed is a C int
+    pole_spacing: float = param(60.0, gt=0, le=limits.LENGTH)
+    min_feature_spacing: float = param(20.0, gt=0, le=limits.LENGTH)
     max_static_features: int = param(64, ge=0)
     zone_radii: tuple[float, float] = param((150.0, 300.0), length=2, gt=0,
                                             must="be (r_C, r_B) with 0 < r_C <= r_B")
-    gnss_position_std: tuple[float, float, float] = param((3.0, 8.0, 15.0), length=3, gt=0,
-                                                          must=_THREE_ZONES)
-    gnss_velocity_std: tuple[float, float, float] = param((0.1, 0.17, 0.45), length=3, gt=0,
-                                                          must=_THREE_ZONES)
-    v2f_position_std: float = param(0.1, gt=0)
-    v2f_velocity_std: float = param(0.1, gt=0)
-    sensing_range: float = param(50.0, gt=0)
-    communication_range: float = param(250.0, gt=0)
+    gnss_position_std: tuple[float, float, float] = param(
+        (3.0, 8.0, 15.0), length=3, ge=limits.STD_MIN, le=limits.LENGTH,
+        must=f"be three numbers in [{limits.STD_MIN:g}, {limits.LENGTH:g}] m (zones A, B, C)")
+    gnss_velocity_std: tuple[float, float, float] = param(
+        (0.1, 0.17, 0.45), length=3, ge=limits.STD_MIN, le=limits.SPEED,
+        must=f"be three numbers in [{limits.STD_MIN:g}, {limits.SPEED:g}] m/s (zones A, B, C)")
+    v2f_position_std: float = param(0.1, ge=limits.STD_MIN, le=limits.LENGTH)
+    v2f_velocity_std: float = param(0.1, ge=limits.STD_MIN, le=limits.SPEED)
+    sensing_range: float = param(50.0, gt=0, le=limits.LENGTH)
+    communication_range: float = param(250.0, gt=0, le=limits.LENGTH)
     detection_probability: float = param(1.0, gt=0, le=1)
-    clutter_rate: float = param(0.0, ge=0)
-    vehicle_noise_density: float = param(2.0, gt=0)
-    feature_noise_density: float = param(0.05, gt=0)
-    prior_position_std: float = param(2.0, gt=0)
-    prior_velocity_std: float = param(0.1, gt=0)
-    birth_position_std: float = param(100.0, gt=0)
-    birth_velocity_std: float = param(10.0, gt=0)
+    clutter_rate: float = param(0.0, ge=0, le=limits.CLUTTER_RATE)
+    vehicle_noise_density: float = param(2.0, gt=0, le=limits.NOISE_DENSITY)
+    feature_noise_density: float = param(0.05, gt=0, le=limits.NOISE_DENSITY)
+    prior_position_std: float = param(2.0, ge=limits.STD_MIN, le=limits.LENGTH)
+    prior_velocity_std: float = param(0.1, ge=limits.STD_MIN, le=limits.SPEED)
+    birth_position_std: float = param(100.0, ge=limits.STD_MIN, le=limits.LENGTH)
+    birth_velocity_std: float = param(10.0, ge=limits.STD_MIN, le=limits.SPEED)
 
     def validate(self) -> None:
         self.require(self.duration >= self.dt, "duration", f"be >= dt = {self.dt}")
         self.require(self.zone_radii[0] <= self.zone_radii[1], "zone_radii",
                      "be (r_C, r_B) with 0 < r_C <= r_B")
+
+    def sizes(self) -> Sizes:
+        """A floor for `cooploc.budget`: how many vehicles share a step depends on the traffic,
+        so only one is counted, beside every static feature."""
+        return Sizes(self.n_steps, 1, self.max_static_features)
 
     @property
     def n_steps(self) -> int:
