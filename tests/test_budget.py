@@ -128,3 +128,18 @@ def test_time_floor_grows_with_the_cube_of_the_joint_state():
                                      backend="serial"))
     np.testing.assert_allclose(large / small, 8.0)  # D = 4 (2 + K): (800 / 400)³, exact arithmetic
     assert duration(90) == "1.5 min" and duration(2 * 86400) == "2 days"
+
+
+def test_the_python_api_refuses_what_does_not_fit_before_writing(monkeypatch, tmp_path):
+    """run_experiment and run_to_folder check memory too, not only the command line;
+    run_to_folder before it writes anything."""
+    from cooploc.experiment import run_experiment
+    from cooploc.results import run_to_folder
+
+    monkeypatch.setattr(cooploc.budget, "available_memory", lambda: 16 * 10**9)
+    config = _config(names=("oracle-kf",), overrides={"n_features": 20000}, runs=1, backend="serial")
+    with pytest.raises(ConfigError, match="of memory"):
+        run_experiment(config)
+    with pytest.raises(ConfigError, match="of memory"):
+        run_to_folder(config, tmp_path / "out")
+    assert not (tmp_path / "out").exists()

@@ -559,7 +559,13 @@ class _Tasks:
 def run_experiment(config: ExperimentConfig, progress: bool = False,
                    on_result: Callable[[RunResult], None] | None = None) -> ExperimentResult:
     """All runs of `config` with its backend; `on_result` is called with each run as it
-    finishes (completion order; the returned result is in run order either way)."""
+    finishes (completion order; the returned result is in run order either way).
+
+    An experiment that surely does not fit in memory is refused first
+    (`cooploc.budget.check_memory`)."""
+    from cooploc.budget import check_memory
+
+    check_memory(config)
     tasks = _Tasks([config])
     with _Progress(len(tasks), f"{config.scenario}: runs", progress) as tick:
         results = execute(tasks, config.backend, config.workers, tick, on_result)

@@ -251,12 +251,17 @@ def run_to_folder(config: ExperimentConfig, out: str | os.PathLike[str], *,
                   progress: bool = False) -> Path:
     """Run the experiment, writing each run to `out/runs/` as it finishes, then merge.
 
-    config.toml is written first. If the experiment is interrupted (KeyboardInterrupt)
-    or a run raises, the runs finished so far are merged into summary.json (with
+    An experiment that surely does not fit in memory is refused first
+    (`cooploc.budget.check_memory`); then config.toml is written. If the experiment is
+    interrupted (KeyboardInterrupt) or a run raises, the runs finished so far are merged
+    into summary.json (with
     ``"complete": false``, ``"runs_finished"``, ``"stopped_by"``), errors.parquet, the
     figures and report.md, and the exception is raised again. Once a complete
     experiment is merged, `out/runs/` is removed; an incomplete one keeps it.
     """
+    from cooploc.budget import check_memory
+
+    check_memory(config)  # before anything is written: a refused experiment leaves no folder
     folder = Path(out)
     parts = folder / RUNS_FOLDER
     parts.mkdir(parents=True, exist_ok=True)
