@@ -30,8 +30,10 @@ def _nav_pages() -> list[str]:
 
 
 def _generated_pages() -> set[str]:
-    """Pages that gen_pages.py writes: the gallery index and one page per example."""
-    return {"gallery/index.md"} | {f"gallery/{p.stem}.md" for p in EXAMPLES.glob("*.py")}
+    """Pages that gen_pages.py writes: the gallery index, one page per example, the
+    applicability table."""
+    return ({"gallery/index.md", "applicability.md"}
+            | {f"gallery/{p.stem}.md" for p in EXAMPLES.glob("*.py")})
 
 
 @pytest.mark.parametrize("path", sorted(EXAMPLES.glob("*.py")), ids=lambda p: p.stem)
@@ -71,3 +73,22 @@ def test_scenario_figures_name_registered_presets_and_appear_on_the_page() -> No
     page = (DOCS / "scenarios.md").read_text(encoding="utf-8")
     shown = set(re.findall(r"\(scenarios/([\w-]+)\.png\)", page))
     assert shown == set(FIGURES)
+
+
+def test_the_applicability_page_is_computed_from_the_registry() -> None:
+    """docs/scripts/applicability.py: one row per registered estimator, refusals give a
+    reason, and a known case of each kind reads as the registry decides."""
+    from applicability import FAMILIES, page
+
+    from cooploc.registry import estimators
+
+    text = page()
+    rows = [line for line in text.splitlines() if line.startswith("| `")]
+    assert len(rows) == len(estimators())
+    cells = {row.split("|")[1].strip(" `"): [c.strip() for c in row.split("|")[2:-1]] for row in rows}
+    assert all(len(c) == len(FAMILIES) for c in cells.values())
+    column = {preset: i for i, preset in enumerate(FAMILIES)}
+    assert cells["gnss-kf"][column["zhang2016-cv"]].startswith("**no**: reads only gnss (gnss-position)")
+    assert cells["gnss-kf"][column["froehle2018"]] == "yes (not v2f)"
+    assert cells["oracle-kf"][column["froehle2018"]] == "yes"
+    assert cells["plbp"][column["froehle2018"]] == "**no**: needs aoa"

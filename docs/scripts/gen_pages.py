@@ -5,6 +5,8 @@
   script, and `gallery/index.md` shows every example's first figure.
 - `scenarios/<preset>.png`: one run of a preset of every scenario family, drawn by
   `scenario_figures.py`, for `scenarios.md`.
+- `applicability.md`: which estimator runs on which scenario family, and what it leaves
+  aside, computed from the registry by `applicability.py`.
 
 Everything runs in child processes (examples cannot see each other's registrations;
 SUMO keeps global state), two at a time — the scenario figures, the longest job, first.
@@ -24,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gallery_runner import Example, examples, run_example, run_script
 
 SCENARIO_FIGURES = Path(__file__).resolve().parent / "scenario_figures.py"
+APPLICABILITY = Path(__file__).resolve().parent / "applicability.py"
 
 
 def gallery_page(example: Example, output: str, figures: list[Path]) -> str:
@@ -62,9 +65,11 @@ def main() -> None:
         scenario_dir.mkdir()
         with ThreadPoolExecutor(max_workers=2) as pool:
             scenarios = pool.submit(run_script, SCENARIO_FIGURES, [str(scenario_dir)])
+            applicability = pool.submit(run_script, APPLICABILITY, [])
             runs = [pool.submit(run_example, ex.path, gallery_dir) for ex in found]
             scenarios.result()
             results = [r.result() for r in runs]
+        write("applicability.md", applicability.result())
         for png in sorted(scenario_dir.glob("*.png")):
             write(f"scenarios/{png.name}", png.read_bytes())
         for example, (output, figures) in zip(found, results, strict=True):
