@@ -122,6 +122,13 @@ def test_results_folder(tmp_path):
     vehicles = (np.array(rows["estimator"]) == "gnss-kf") & (np.array(rows["kind"]) == "vehicle")
     np.testing.assert_allclose(summary["estimators"]["gnss-kf"]["nees_mean"],
                                np.mean(np.array(rows["nees"])[vehicles]), rtol=1e-12)
+    # nis_mean is Σ NIS / Σ dof over the runs' totals, which sum the steps' Estimate.info["nis"]
+    for name in ("gnss-kf", "oracle-kf"):
+        totals = [r.nis[name] for r in result.runs]
+        np.testing.assert_allclose(summary["estimators"][name]["nis_mean"],
+                                   sum(v for v, _ in totals) / sum(d for _, d in totals), rtol=1e-12)
+    # gnss-kf: one 2-D fix per vehicle and step (2 vehicles, 30 steps)
+    assert [d for _, d in (r.nis["gnss-kf"] for r in result.runs)] == [2 * 2 * 30] * 2
     # gnss-kf is the GNSS-only baseline: it says that it left the V2F rows aside
     assert summary["estimators"]["gnss-kf"]["unused_kinds"] == ["v2f"]
     assert summary["estimators"]["oracle-kf"]["unused_kinds"] == []
@@ -130,6 +137,15 @@ def test_results_folder(tmp_path):
     config = ExperimentConfig.from_dict(tomllib.loads((folder / "config.toml").read_text()))
     assert config == result.config
     assert _numbers(summarize(run_experiment(config))) == _numbers(summary)
+
+
+def test_nis_is_null_for_an_estimator_that_reports_none():
+    # gm-phd is a mixture filter: no single innovation, no ``info["nis"]`` (docs/outputs.md)
+    result = run_experiment(_config(runs=1, names=("gnss-kf", "gm-phd")))
+    summary = summarize(result)
+    assert "gm-phd" not in result.runs[0].nis
+    assert summary["estimators"]["gm-phd"]["nis_mean"] is None
+    assert summary["estimators"]["gnss-kf"]["nis_mean"] > 0
 
 
 def test_sweep_uses_common_random_numbers():

@@ -1,7 +1,7 @@
 """`cooploc.gaussian` against trusted references and invariants.
 
 Oracles: filterpy's `KalmanFilter` (the textbook equations, one belief at a time),
-`scipy.stats.multivariate_normal` for log densities. Properties (hypothesis): the
+`scipy.stats.multivariate_normal` for log densities (and, through them, the NIS). Properties (hypothesis): the
 Joseph-form covariance is symmetric positive semi-definite and never larger than the
 prior; the information form is an exact re-parametrisation.
 """
@@ -23,6 +23,8 @@ from cooploc.gaussian import (
     information_update,
     kf_predict,
     kf_update,
+    kf_update_nis,
+    nis,
     symmetrize,
     to_information,
 )
@@ -271,3 +273,68 @@ def test_block_diagonal_equals_scipy(rng):
     expected = block_diag(*[block for stack in stacks for block in stack])
     np.testing.assert_array_equal(block_diagonal(*stacks), expected)  # pure copies, exact
     assert block_diagonal().shape == (0, 0)
+
+
+# -- normalised innovation squared (issue 16 item 8) ------------------------------------
+
+
+def test_nis_of_hand_computed_updates() -> None:
+    # 1-D: P⁻ = 3, R = 1 → S = 4; ν = 2 → NIS = 4 / 4 = 1
+    _, one = kf_update_nis(Gaussians(np.zeros((1, 1)), np.full((1, 1, 1), 3.0)), np.array([[2.0]]),
+                           np.eye(1), np.eye(1))
+    # 2-D: S = diag(1, 2) + diag(1, 2) = diag(2, 4); ν = [3, 6] − [1, 2] = [2, 4] → 4/2 + 16/4 = 6
+    _, two = kf_update_nis(Gaussians(np.array([[1.0, 2.0]]), np.diag([1.0, 2.0])[None]),
+                           np.array([[3.0, 6.0]]), np.eye(2), np.diag([1.0, 2.0]))
+    np.testing.assert_allclose([one[0], two[0]], [1.0, 6.0], rtol=1e-14)   # exact but for round-off
+    np.testing.assert_allclose(nis(np.array([2.0, 4.0]), np.diag([2.0, 4.0])), 6.0, rtol=1e-14)
+
+
+@pytest.mark.parametrize("case", range(6))
+@pytest.mark.parametrize("per_belief", [False, True], ids=["shared-H-R", "per-belief-H-R"])
+def test_nis_equals_explicit_inverse_and_scipy_density(rng: np.random.Generator, case: int,
+                                                       per_belief: bool) -> None:
+    p = random_problem(rng)
+    H, R = (p["Hn"], p["Rn"]) if per_belief else (p["H"], p["R"])
+    prior = Gaussians(p["mean"], p["cov"])
+    post, ours = kf_update_nis(prior, p["z"], H, R)
+    # the update itself is kf_update's, bit for bit
+    plain = kf_update(prior, p["z"], H, R)
+    assert np.array_equal(post.mean, plain.mean) and np.array_equal(post.cov, plain.cov)
+    for i in range(len(p["mean"])):
+        Hi, Ri = (H[i], R[i]) if per_belief else (H, R)
+        S = Hi @ p["cov"][i] @ Hi.T + Ri
+        nu = p["z"][i] - Hi @ p["mean"][i]
+        explicit = nu @ np.linalg.inv(S) @ nu
+        # log N(z; H m, S) = −(dz log 2π + log|S| + NIS) / 2
+        dz = nu.size
+        from_density = (-2.0 * multivariate_normal(Hi @ p["mean"][i], S).logpdf(p["z"][i])
+                        - dz * np.log(2 * np.pi) - np.linalg.slogdet(S)[1])
+        np.testing.assert_allclose(ours[i], explicit, rtol=REFERENCE_RTOL)
+        # the density route loses absolute precision in log|S| + dz log 2π (~1e-14 each)
+        np.testing.assert_allclose(ours[i], from_density, rtol=1e-8, atol=1e-10)
+
+
+def test_nis_of_a_consistent_model_is_chi2(rng: np.random.Generator) -> None:
+    # x ~ N(m, P), z = H x + w: the innovations are N(0, S), so Σ NIS ~ χ²(n dz)
+    from scipy.stats import chi2
+
+    n, dx, dz = 4000, 4, 2
+    P = random_spd(rng, dx, n)
+    mean = rng.standard_normal((n, dx))
+    x = mean + np.einsum("nij,nj->ni", np.linalg.cholesky(P), rng.standard_normal((n, dx)))
+    H, R = rng.standard_normal((dz, dx)), random_spd(rng, dz)
+    z = x @ H.T + rng.standard_normal((n, dz)) @ np.linalg.cholesky(R).T
+    _, values = kf_update_nis(Gaussians(mean, P), z, H, R)
+    low, high = chi2.ppf([0.0005, 0.9995], n * dz)   # 99.9 %: a fixed seed, but no luck needed
+    assert low <= values.sum() <= high
+
+
+def test_nis_survives_the_square_root_fallback() -> None:
+    # S = [[1, 1], [1, 1]] + 1e-20 I is singular in float64 (the fallback case of
+    # test_estimator_failures); exactly, ν = [1, 3] gives NIS = 4²/(2 (2 + ε)) + 2²/(2 ε) ≈ 2e20
+    prior = Gaussians(np.zeros((1, 2)), np.eye(2)[None])
+    H = np.array([[1.0, 0.0], [1.0, 0.0]])
+    post, values = kf_update_nis(prior, np.array([[1.0, 3.0]]), H, 1e-20 * np.eye(2))
+    assert np.array_equal(post.mean, kf_update(prior, np.array([[1.0, 3.0]]), H, 1e-20 * np.eye(2)).mean)
+    # QR of a pre-array spanning 10 orders of magnitude: ~1e-16 × 1e10 relative
+    np.testing.assert_allclose(values, [2e20], rtol=1e-6)

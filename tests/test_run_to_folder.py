@@ -58,6 +58,7 @@ def test_parts_read_back_to_the_same_runs(tmp_path):
     for a, b in zip(result.runs, back, strict=True):
         assert a.step_seconds == b.step_seconds and a.n_steps == b.n_steps
         assert a.association == b.association and a.discarded == b.discarded and a.failures == b.failures
+        assert a.nis == b.nis and set(a.nis) == {"gnss-kf", "oracle-kf"}   # (Σ NIS, Σ dof) per estimator
         for name in a.errors:
             for f in ErrorTable.__dataclass_fields__:
                 np.testing.assert_array_equal(getattr(a.errors[name], f), getattr(b.errors[name], f))

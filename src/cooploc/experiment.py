@@ -296,6 +296,7 @@ class RunResult:
     ospa: dict[str, np.ndarray] = field(default_factory=dict)  # per step, m (metrics.ospa)
     failures: dict[str, Failure] = field(default_factory=dict)
     unused_kinds: dict[str, tuple[str, ...]] = field(default_factory=dict)  # registry.unused_kinds
+    nis: dict[str, tuple[float, int]] = field(default_factory=dict)  # (Σ NIS, Σ dof), `_nis_total`
     # run 0 only: each estimator's estimates for the viewer (`cooploc.view.estimates`)
     estimates: dict[str, list[Estimate]] | None = None
 
@@ -442,6 +443,12 @@ def _check_finite(name: str, estimate_k: Estimate, step: int) -> None:
                 raise EstimatorError(name, f"non-finite estimate ({part}.{array})", step=step)
 
 
+def _nis_total(estimates: Sequence[Estimate]) -> tuple[float, int] | None:
+    """(Σ NIS, Σ dof) over the steps of a run (``Estimate.info["nis"]``); None if no step has it."""
+    steps = [e.info["nis"] for e in estimates if "nis" in e.info]
+    return (float(sum(v for v, _ in steps)), int(sum(d for _, d in steps))) if steps else None
+
+
 def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = None) -> RunResult:
     """Simulate run `run` and process it with every estimator of the config.
 
@@ -453,7 +460,7 @@ def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = No
     names = [e.name for e in config.estimators]
     scenario_rng, estimator_rngs = run_generators(config.seed, run, names)
     recording = preset.generate(scenario_rng, config.scenario_params)
-    errors, seconds, steps, association, discarded, ospa, unused = {}, {}, {}, {}, {}, {}, {}
+    errors, seconds, steps, association, discarded, ospa, unused, nis = {}, {}, {}, {}, {}, {}, {}, {}
     failures = {}
     kept: dict[str, list[Estimate]] | None = {} if (run == 0 if keep_estimates is None
                                                     else keep_estimates) else None
@@ -472,6 +479,8 @@ def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = No
             association[spec.name] = (score.correct, score.total)
         if score is not None and score.discarded is not None:
             discarded[spec.name] = (score.discarded, score.rows)
+        if (total := _nis_total(estimates)) is not None:
+            nis[spec.name] = total
         with np.errstate(over="ignore"):  # a diverged estimate's error overflows: summarize flags it
             errors[spec.name] = evaluate(recording, estimates)
             ospa[spec.name] = ospa_per_step(recording, estimates)
@@ -481,7 +490,7 @@ def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = No
 
             kept[spec.name] = kept_estimates(recording, estimates)
     return RunResult(run, errors, seconds, steps, association, discarded, ospa, failures=failures,
-                     unused_kinds=unused, estimates=kept)
+                     unused_kinds=unused, nis=nis, estimates=kept)
 
 
 # ----------------------------------------------------------------------------

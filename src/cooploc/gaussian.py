@@ -21,6 +21,12 @@ K = K̄ S^−½ — it never forms S or subtracts, so P stays positive definite.
 runs only when the Joseph form fails, so well-conditioned updates are bit-for-bit the
 Joseph ones.
 
+Consistency: the normalised innovation squared NIS = νᵀ S⁻¹ ν of the innovation
+ν = z − H m⁻ is χ²(dz) distributed for a consistent filter, and white over time (Bar-Shalom,
+Li & Kirubarajan 2001, §5.4). `kf_update_nis` returns it beside the update (from the
+Joseph form's ν and S, or as |S^−½ ν|² from the square-root form), computed only there:
+`kf_update` costs nothing more for it, and the estimate is the same bit for bit.
+
 Information form: Λ = P⁻¹, η = P⁻¹ m. A measurement z = H x + w, w ~ N(0, R) adds
 Hᵀ R⁻¹ H to Λ and Hᵀ R⁻¹ z to η — the product of Gaussian messages is a sum, which is
 why Gaussian belief propagation works in this form.
@@ -61,7 +67,9 @@ __all__ = [
     "information_update",
     "kf_predict",
     "kf_update",
+    "kf_update_nis",
     "kf_update_square_root",
+    "nis",
     "sigma_points",
     "statistical_linear_regression",
     "symmetrize",
@@ -133,19 +141,42 @@ def kf_update(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray) -> 
     H : (dz, dx) or (n, dz, dx).
     R : (dz, dz) or (n, dz, dz).
     """
+    return _kf_update(prior, z, H, R)[0]
+
+
+def kf_update_nis(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray
+                  ) -> tuple[Gaussians, FloatArray]:
+    """`kf_update` (the same posterior, bit for bit) and the NIS νᵀ S⁻¹ ν of each belief (n,).
+
+    Each NIS has dz degrees of freedom: χ²(dz) for a consistent filter.
+    """
+    post, nis_of = _kf_update(prior, z, H, R)
+    return post, nis_of()
+
+
+def nis(innovation: FloatArray, S: FloatArray) -> FloatArray:
+    """Normalised innovation squared νᵀ S⁻¹ ν of innovations (..., dz), covariances (..., dz, dz)."""
+    return np.einsum("...i,...i->...", innovation, np.linalg.solve(S, innovation[..., None])[..., 0])
+
+
+def _kf_update(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray
+               ) -> tuple[Gaussians, Callable[[], FloatArray]]:
+    """The update of `kf_update` and a function computing its NIS (only if called)."""
     try:
-        post = _kf_update_joseph(prior, z, H, R)
+        post, innovation, S = _kf_update_joseph(prior, z, H, R)
     except np.linalg.LinAlgError:
-        return kf_update_square_root(prior, z, H, R)
+        return _kf_update_square_root(prior, z, H, R)
     if not _is_positive_definite(post.cov):  # P⁻ and R too far apart for the Joseph form
         try:
-            return kf_update_square_root(prior, z, H, R)
+            return _kf_update_square_root(prior, z, H, R)
         except np.linalg.LinAlgError:  # P⁻ itself only semi-definite: the Joseph result stands
             pass
-    return post
+    return post, lambda: nis(innovation, S)
 
 
-def _kf_update_joseph(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray) -> Gaussians:
+def _kf_update_joseph(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray
+                      ) -> tuple[Gaussians, FloatArray, FloatArray]:
+    """The Joseph-form posterior, the innovation ν and its covariance S."""
     P = prior.cov
     Ht = np.swapaxes(H, -1, -2)
     PHt = P @ Ht
@@ -156,7 +187,7 @@ def _kf_update_joseph(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatAr
     I_KH = np.eye(P.shape[-1]) - K @ H
     # P = (I − K H) P (I − K H)ᵀ + K R Kᵀ   (Joseph form)
     cov = I_KH @ P @ np.swapaxes(I_KH, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
-    return Gaussians(mean, symmetrize(cov))
+    return Gaussians(mean, symmetrize(cov)), innovation, S
 
 
 def _is_positive_definite(cov: FloatArray) -> bool:
@@ -173,6 +204,12 @@ def kf_update_square_root(prior: Gaussians, z: FloatArray, H: FloatArray, R: Flo
     Same arguments; needs P⁻ and R positive definite. Raises `LinAlgError` where S is
     singular even so (a zero on the diagonal of S^½).
     """
+    return _kf_update_square_root(prior, z, H, R)[0]
+
+
+def _kf_update_square_root(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray
+                           ) -> tuple[Gaussians, Callable[[], FloatArray]]:
+    """`kf_update_square_root` and a function giving its NIS |S^−½ ν|²."""
     P = prior.cov
     n_x, n_z = P.shape[-1], np.shape(z)[-1]
     S_p = np.linalg.cholesky(P)                                        # P⁻ = Sₚ Sₚᵀ
@@ -190,7 +227,8 @@ def kf_update_square_root(prior: Gaussians, z: FloatArray, H: FloatArray, R: Flo
     innovation = z - np.einsum("...ij,...j->...i", H, prior.mean)
     white = np.linalg.solve(S_half, innovation[..., None])[..., 0]     # S^−½ (z − H m⁻)
     mean = prior.mean + np.einsum("...ij,...j->...i", K_bar, white)    # m = m⁻ + K̄ S^−½ ν
-    return Gaussians(mean, symmetrize(P_half @ np.swapaxes(P_half, -1, -2)))
+    posterior = Gaussians(mean, symmetrize(P_half @ np.swapaxes(P_half, -1, -2)))
+    return posterior, lambda: (white**2).sum(-1)                            # νᵀ S⁻¹ ν = |S^−½ ν|²
 
 
 def to_information(belief: Gaussians) -> tuple[FloatArray, FloatArray]:

@@ -213,6 +213,8 @@ def nees_band(samples: int, dim: int = 2, probability: float = 0.95) -> tuple[fl
     [χ²_{Nd}((1 − p)/2), χ²_{Nd}((1 + p)/2)] / N. Errors of one run are correlated over
     steps, so for a time average over K steps of M runs this band (N = M K) is the
     usual, optimistic consistency test (Bar-Shalom, Li & Kirubarajan 2001, §5.4).
+    With `dim` = 1 and N = Σ dof it is the band of ΣNIS / Σdof (summary.json's `nis_mean`):
+    a consistent filter's innovations are white, so ΣNIS ~ χ²(Σ dof).
     """
     from scipy.stats import chi2
 

@@ -3,7 +3,9 @@
 - `summarize(result)`: the `summary.json` contract — per estimator, vehicle RMSE per id
   and pooled, per-run RMSE, feature and heading RMSE, association accuracy, the share
   of V2F rows left unused, steps per second, and Zhang 2016's total error (eq. 20) and
-  OSPA; the failed and the diverged estimator-runs; whether every run finished.
+  OSPA; consistency (mean NEES, and NIS per degree of freedom of the filters that report
+  ``Estimate.info["nis"]``); the failed and the diverged estimator-runs; whether every run
+  finished.
 - `errors_frame(result)`: the long `errors.parquet` table (one row per run × step ×
   estimator × entity).
 - `write_results(result, out)`: summary.json, errors.parquet, config.toml, failures.log
@@ -77,6 +79,12 @@ def _diverged_runs(run: np.ndarray, table: ErrorTable, diverged: np.ndarray) -> 
                     "vehicles": sorted({int(i) for i in table.id[rows & (table.kind == VEHICLE)]}),
                     "features": sorted({int(i) for i in table.id[rows & (table.kind == FEATURE)]})})
     return out
+
+
+def _nis_mean(totals: list[tuple[float, int]]) -> float | None:
+    """Σ NIS / Σ dof over the runs' (Σ NIS, Σ dof) (1 for a consistent filter); null without dof."""
+    dof = sum(d for _, d in totals)
+    return _finite_or_none(sum(v for v, _ in totals) / dof) if dof else None
 
 
 def _json_ready(value: Any) -> Any:
@@ -154,6 +162,7 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
             "nees_mean": _finite_or_none(float(np.nanmean(table.nees[vehicles])))
             if np.isfinite(table.nees[vehicles]).any() else None,
             "unused_kinds": sorted({k for r in result.runs for k in r.unused_kinds.get(spec.name, ())}),
+            "nis_mean": _nis_mean([r.nis[spec.name] for r in result.runs if spec.name in r.nis]),
         }
     return out
 
@@ -303,6 +312,7 @@ def write_run(run: RunResult, config: ExperimentConfig, folder: str | os.PathLik
         "failures": {name: {"step": f.step, "what": f.what, "traceback": f.traceback}
                      for name, f in run.failures.items()},
         "unused_kinds": {name: list(kinds) for name, kinds in run.unused_kinds.items()},
+        "nis": run.nis,
     }
     if run.estimates:  # run 0's estimates, for the viewer: straight to the folder
         from cooploc.view.estimates import write_estimates
@@ -334,6 +344,7 @@ def read_runs(folder: str | os.PathLike[str]) -> list[RunResult]:
             failures={k: Failure(k, record["run"], f["step"], f["what"], f["traceback"])
                       for k, f in record["failures"].items()},
             unused_kinds={k: tuple(v) for k, v in record.get("unused_kinds", {}).items()},
+            nis={k: (float(v[0]), int(v[1])) for k, v in record.get("nis", {}).items()},
         ))
     runs.sort(key=lambda r: r.run)
     return runs

@@ -296,6 +296,11 @@ def assert_valid_estimate(estimate: Estimate, frame: Frame, recording: Recording
         layout = recording.setup.feature_layout
         dim = layout.dim if layout is not None else estimate.features.mean.shape[1]
         assert_state_set(estimate.features, dim, f"step {frame.k} features")
+    if "nis" in estimate.info:  # (Σ NIS, Σ dof) of the step's updates (`types.Estimate`)
+        total, dof = estimate.info["nis"]
+        assert isinstance(dof, (int, np.integer)) and dof >= 0, f"step {frame.k}: nis dof {dof!r}"
+        assert np.isfinite(total) and total >= 0 and (dof > 0 or total == 0), (
+            f"step {frame.k}: nis {total!r} with {dof} degrees of freedom")
 
 
 def _assert_run_valid(estimates: list[Estimate], recording: Recording) -> None:

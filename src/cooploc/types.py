@@ -687,6 +687,11 @@ class Estimate:
       and feature estimates are renamed through that map.
     - ``"v2f_discarded"`` (int): V2F rows left unused this step (with ``"v2f_track"``);
       summed into `discarded_share`.
+    - ``"nis"`` ((float, int)): the normalised innovation squared νᵀ S⁻¹ ν of this step's
+      measurement updates, summed, and the sum of their degrees of freedom (dim ν) —
+      (0.0, 0) on a step without update; reported by Gaussian filters that update with
+      innovations (`gaussian.kf_update_nis`). The runner sums both over steps per run;
+      summary.json's `nis_mean` is ΣNIS / Σdof.
     """
 
     vehicles: StateSet

@@ -22,6 +22,9 @@ also present at k − 1. Scenarios without odometry are filtered exactly as befo
 All vehicles are filtered together as one batch (`gaussian.kf_predict/kf_update`), so
 a step costs O(n dx³) in NumPy calls whose number does not grow with n.
 
+`Estimate.info["nis"]`: the NIS of this step's odometry and GNSS updates, summed, with
+their degrees of freedom (`gaussian.kf_update_nis`; `types.Estimate`).
+
 The model and the stochastic cloning written out: docs/gnss_kf.md.
 """
 
@@ -34,7 +37,7 @@ from typing import ClassVar
 import numpy as np
 
 from cooploc.estimators.base import VehicleBeliefs, checked_states
-from cooploc.gaussian import Gaussians, kf_predict, kf_update
+from cooploc.gaussian import Gaussians, kf_predict, kf_update_nis
 from cooploc.params import Params
 from cooploc.registry import register_estimator
 from cooploc.types import Batch, Estimate, Frame, Setup
@@ -76,9 +79,17 @@ class GnssKF:
         motion = setup.vehicle_motion
         self._Q = None if motion.state_dependent_noise else motion.noise_covariance(setup.dt)
         self._started = False
+        self._nis = (0.0, 0)  # this step's (Σ NIS, Σ dof)
+
+    def _update_nis(self, prior: Gaussians, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> Gaussians:
+        """`kf_update`, adding the update's NIS and degrees of freedom to this step's."""
+        posterior, nis = kf_update_nis(prior, z, H, R)
+        self._nis = (self._nis[0] + float(nis.sum()), self._nis[1] + z.size)
+        return posterior
 
     def step(self, frame: Frame) -> Estimate:
         born = self.vehicles.sync(frame)
+        self._nis = (0.0, 0)
         beliefs = self.vehicles.beliefs
         moving = ~born
         previous = beliefs
@@ -104,7 +115,7 @@ class GnssKF:
         # rows naming no present vehicle (anonymous ones among them) are said, not hidden
         unused = 0 if gnss is None else int((~np.isin(gnss.subject, ids)).sum())
         return Estimate(checked_states(self.name, "vehicle", ids, beliefs.mean, beliefs.cov),
-                        info={"gnss_rows_unused": unused})
+                        info={"gnss_rows_unused": unused, "nis": self._nis})
 
     def _update_odometry(self, beliefs: Gaussians, previous: Gaussians, moving: np.ndarray,
                          odometry: Batch) -> Gaussians:
@@ -126,7 +137,7 @@ class GnssKF:
             np.concatenate([beliefs.mean[target], m_prev], axis=1),
             np.block([[beliefs.cov[target], FP], [np.swapaxes(FP, -1, -2), P_prev]]))
         H_aug = np.concatenate([self._H_odo, -self._H_odo], axis=1)    # z = H x_k − H x_{k−1}
-        updated = kf_update(joint, odometry.z[rows], H_aug, odometry.cov[rows])
+        updated = self._update_nis(joint, odometry.z[rows], H_aug, odometry.cov[rows])
         mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
         mean[target], cov[target] = updated.mean[:, :dx], updated.cov[:, :dx, :dx]
         return Gaussians(mean, cov)
@@ -142,7 +153,7 @@ class GnssKF:
         target = pos[rows]
         if target.size == ids.size and np.array_equal(target, np.arange(ids.size)):
             # usual step: one fix per vehicle, in order — one batched update, no copies
-            return kf_update(beliefs, gnss.z[rows], self._H, gnss.cov[rows])
+            return self._update_nis(beliefs, gnss.z[rows], self._H, gnss.cov[rows])
         # A vehicle with several fixes in one step is updated once per fix, in rounds
         # of distinct vehicles so that each round is one batched update.
         order = np.argsort(target, kind="stable")
@@ -153,7 +164,7 @@ class GnssKF:
         for r in range(int(rank.max()) + 1):
             sel = rank == r
             t = target[sel]
-            updated = kf_update(Gaussians(mean[t], cov[t]), gnss.z[rows[sel]], self._H,
-                                gnss.cov[rows[sel]])
+            updated = self._update_nis(Gaussians(mean[t], cov[t]), gnss.z[rows[sel]], self._H,
+                                    gnss.cov[rows[sel]])
             mean[t], cov[t] = updated.mean, updated.cov
         return Gaussians(mean, cov)

@@ -17,6 +17,8 @@ entering vehicles and newly seen features are appended with their prior (or a br
 belief around their first fix), features unseen for `feature_timeout` steps are
 dropped; then one joint prediction and one joint Joseph-form update with all rows
 stacked. Cost O(D³ + D² m) for D = 4(S + K) states and m measurement components.
+`Estimate.info["nis"]`: that update's NIS with its m degrees of freedom ((0.0, 0) on a
+step without rows; `types.Estimate`).
 
 The model written out: docs/oracle_kf.md.
 """
@@ -31,7 +33,7 @@ import numpy as np
 
 from cooploc.budget import Sizes
 from cooploc.estimators.base import birth_beliefs, checked_states, default_birth_cov, predict_steps
-from cooploc.gaussian import Gaussians, block_diagonal, kf_update, symmetrize
+from cooploc.gaussian import Gaussians, block_diagonal, kf_update_nis, symmetrize
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
 from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup
@@ -196,8 +198,7 @@ class OracleKF:
                 self._append(Gaussians(np.zeros((0, self.dx)), np.zeros((0, self.dx, self.dx))),
                              np.zeros(0, np.int64), f_birth, new_f, k)
         self._sort()
-        self._update(frame, v2f_rows)
-        return self._estimate()
+        return self._estimate(self._update(frame, v2f_rows))
 
     def _sort(self) -> None:
         """Order blocks by id so that results do not depend on arrival order."""
@@ -230,8 +231,8 @@ class OracleKF:
         self.mean = F @ self.mean                                  # θ⁻ = F θ
         self.cov = symmetrize(F @ self.cov @ F.T + Q)              # P⁻ = F P Fᵀ + Q
 
-    def _update(self, frame: Frame, v2f_rows: IntArray) -> None:
-        """One Joseph-form update with every associated row stacked."""
+    def _update(self, frame: Frame, v2f_rows: IntArray) -> tuple[float, int]:
+        """One Joseph-form update with every associated row stacked; (its NIS, its dof)."""
         D = self.mean.size
         vstart, fstart = self._blocks()
         H_rows, z_rows, R_blocks = [], [], []
@@ -268,12 +269,13 @@ class OracleKF:
             z_rows.append(v2f.z[rows].ravel())
             R_blocks.append(v2f.cov[rows])
         if not H_rows:
-            return
+            return 0.0, 0
         H, z, R = np.concatenate(H_rows), np.concatenate(z_rows), block_diagonal(*R_blocks)
-        post = kf_update(Gaussians(self.mean[None], self.cov[None]), z[None], H, R)
+        post, nis = kf_update_nis(Gaussians(self.mean[None], self.cov[None]), z[None], H, R)
         self.mean, self.cov = post.mean[0], post.cov[0]
+        return float(nis[0]), z.size
 
-    def _estimate(self) -> Estimate:
+    def _estimate(self, nis: tuple[float, int]) -> Estimate:
         nv, nf = self.vehicle_ids.size, self.feature_ids.size
         vstart, fstart = self._blocks()
         vi = vstart[:, None] + np.arange(self.dx)
@@ -286,4 +288,4 @@ class OracleKF:
             features = checked_states(self.name, "feature", self.feature_ids,
                                       self.mean[fi].reshape(nf, self.df),
                                       self.cov[fi[:, :, None], fi[:, None, :]])
-        return Estimate(vehicles, features, {"state_dim": int(self.mean.size)})
+        return Estimate(vehicles, features, {"state_dim": int(self.mean.size), "nis": nis})

@@ -17,6 +17,10 @@ van der Merwe 2000) through the stacked pseudo-measurement of eq. (19)
     ȳ = Σ W_m Y,  S = Σ W_c (Y − ȳ)(Y − ȳ)ᵀ + Σ W_m R,  C = Σ W_c (X − m)(Y − ȳ)ᵀ,
     K = C S⁻¹,  m ← m + K (y − ȳ),  P ← P − K S Kᵀ.
 
+``info["nis"]``: the NIS (y − ȳ)ᵀ S⁻¹ (y − ȳ) of the update with its dim y degrees of
+freedom ((0.0, 0) on a step without pseudo-measurement; `types.Estimate`) — with S from
+the unscented transform of a nonlinear map it is χ² only approximately.
+
 Choice the paper leaves open: when the update loses positive definiteness, the spectrum
 is lifted to 1e-9 (``info["covariance_repaired"]``). Where the joint covariance has no
 Cholesky factor for the sigma points, or S is singular (the sums of powers lose all
@@ -36,7 +40,7 @@ import numpy as np
 
 from cooploc.errors import EstimatorError
 from cooploc.estimators.sme.filter_base import _SmeFilter, _SmeParams
-from cooploc.gaussian import symmetrize
+from cooploc.gaussian import nis, symmetrize
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
 from cooploc.types import Estimate, FloatArray, Frame, Setup, StateSet
@@ -137,6 +141,7 @@ class SmeUKF(_SmeFilter):
             return Estimate(StateSet.empty(self.dx), None, {"set_valued": True, "skipped": []})
         mean, cov = self._moments()
         model, info = self._pseudo_measurement(frame, mean, cov)
+        info["nis"] = (0.0, 0)
         if model.y_gnss is not None or model.y_radar is not None:
             points, w_m, w_c = self._sigma_points()
             y, Y, R = model.predict(points[:, :, self.pos])
@@ -153,6 +158,7 @@ class SmeUKF(_SmeFilter):
                                      "precision (a belief far from the rows, or covariances too far apart "
                                      "for float64)") from None
             self.mean = (self.mean.ravel() + K @ (y - y_hat)).reshape(self.mean.shape)
+            info["nis"] = (float(nis(y - y_hat, S)), int(y.size))
             self.cov = symmetrize(self.cov - K @ S @ K.T)
             eig_min = np.linalg.eigvalsh(self.cov).min()
             if eig_min <= 1e-9:  # the UT lost positive definiteness: lift the spectrum
