@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from cooploc.backends import completed
+from cooploc.errors import ConfigError
 from cooploc.experiment import ExperimentConfig, execute, iter_runs, run_experiment
 from cooploc.metrics import ErrorTable
 from cooploc.results import RUNS_FOLDER, merge_runs, read_runs, run_to_folder, write_results, write_run
@@ -166,3 +167,25 @@ def test_the_command_line_reports_an_interrupted_run(tmp_path):
     assert result.exit_code == 130
     assert "incomplete: 0 of 3 runs finished (stopped by KeyboardInterrupt)" in result.output
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["complete"] is False
+
+
+def test_a_refused_configuration_leaves_nothing_behind(tmp_path):
+    """An estimator refused in run 0 (it can use nothing zhang2016's anonymous GNSS offers):
+    the error, and no folder of empty results."""
+    config = ExperimentConfig.build("zhang2016-cv", ["gnss-kf"], scenario_overrides={"n_steps": 5},
+                                    runs=2, seed=1, backend="serial")
+    with pytest.raises(ConfigError, match="can use nothing"):
+        run_to_folder(config, tmp_path / "out")
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_cli_refusal_leaves_no_folder(tmp_path):
+    from typer.testing import CliRunner
+
+    from cooploc.cli import app
+
+    out = tmp_path / "new"
+    result = CliRunner().invoke(app, ["run", "zhang2016-cv", "-e", "gnss-kf", "--runs", "2", "--set",
+                                      "n_steps=5", "--out", str(out), "--no-progress"])
+    assert result.exit_code == 2 and "can use nothing" in result.output
+    assert not out.exists()

@@ -7,6 +7,7 @@ bad value) ends in one line on stderr and exit code 2, without a traceback.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import sys
 from collections.abc import Callable
@@ -199,6 +200,7 @@ def run(
         )
         folder = Path(out) if out is not None else Path("results") / cfg.scenario
     check_memory(cfg)
+    existed = folder.exists()
     check_out(folder, cfg, overwrite)
     seconds = estimate_seconds(cfg)
     if seconds >= 3600:  # not refused (a long study may be meant), but said before it starts
@@ -208,6 +210,11 @@ def run(
     except KeyboardInterrupt:
         _print_summary(folder)
         raise typer.Exit(130) from None
+    except ConfigError:
+        if not existed:  # made by check_out; a refused configuration leaves no empty folder
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        raise
     if view:
         from cooploc.view import link_in_report, write_view
 

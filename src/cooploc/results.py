@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 
 from cooploc._version import __version__
+from cooploc.errors import ConfigError
 from cooploc.experiment import ExperimentConfig, ExperimentResult, Failure, RunResult, iter_runs
 from cooploc.metrics import FEATURE, KIND_NAMES, VEHICLE, ErrorTable, per_entity_rmse, rmse, total_rmse
 from cooploc.plots import run_figures, run_report
@@ -266,7 +267,9 @@ def run_to_folder(config: ExperimentConfig, out: str | os.PathLike[str], *,
     into summary.json (with
     ``"complete": false``, ``"runs_finished"``, ``"stopped_by"``), errors.parquet, the
     figures and report.md, and the exception is raised again. Once a complete
-    experiment is merged, `out/runs/` is removed; an incomplete one keeps it.
+    experiment is merged, `out/runs/` is removed; an incomplete one keeps it. A
+    configuration refused before any run finished (a `ConfigError`, e.g. an estimator
+    that can use nothing the scenario offers) leaves nothing behind.
     """
     from cooploc.budget import check_memory
 
@@ -280,10 +283,20 @@ def run_to_folder(config: ExperimentConfig, out: str | os.PathLike[str], *,
     for stale in [*parts.glob("run-*"), folder / "summary.json", folder / ESTIMATES_FILE]:
         stale.unlink(missing_ok=True)
     _write_config(config, folder)
+    finished = 0
     try:
         with contextlib.closing(iter_runs(config, progress)) as runs:
             for run in runs:
                 write_run(run, config, folder)
+                finished += 1
+    except ConfigError:
+        if finished == 0:  # refused (e.g. an estimator that can use nothing): no results to keep
+            (folder / "config.toml").unlink(missing_ok=True)
+            with contextlib.suppress(OSError):
+                parts.rmdir()
+            raise
+        merge_runs(folder, config, stopped_by="ConfigError")
+        raise
     except BaseException as exc:  # Ctrl-C or an error: keep what finished, then stop
         merge_runs(folder, config, stopped_by=type(exc).__name__)
         raise
