@@ -25,7 +25,7 @@ from cooploc.errors import ConfigError, CooplocError, EstimatorError, InvalidInp
 #: public name → the module that holds it; loaded on first access (Scientific Python
 #: SPEC 1), so that `import cooploc` and the command line start without NumPy & co.
 _EXPORTS = {
-    "ExperimentConfig": "cooploc.experiment",
+    "ExperimentConfig": "cooploc.config",
     "ExperimentResult": "cooploc.experiment",
     "estimate": "cooploc.experiment",
     "run_experiment": "cooploc.experiment",
@@ -101,7 +101,8 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # what static tools see
-    from cooploc.experiment import ExperimentConfig, ExperimentResult, estimate, run_experiment, run_sweep
+    from cooploc.config import ExperimentConfig
+    from cooploc.experiment import ExperimentResult, estimate, run_experiment, run_sweep
     from cooploc.metrics import ecdf, evaluate, rmse
     from cooploc.registry import (
         Preset,

@@ -32,7 +32,7 @@ class RunView:
 
     folder: Path
     run: int
-    config: Any  # cooploc.experiment.ExperimentConfig
+    config: Any  # cooploc.config.ExperimentConfig
     preset: Any  # cooploc.registry.Preset
     recording: Recording
     estimates: dict[str, list[Estimate]]
