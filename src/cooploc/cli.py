@@ -1,4 +1,4 @@
-"""The `cooploc` command line (DESIGN §6): list, run, view, reproduce.
+"""The `cooploc` command line (DESIGN §6): list, run, compare, view, reproduce.
 
 The CLI only parses and calls `cooploc.experiment` / `cooploc.reproduce`. Every
 mistake a user can make on the command line (unknown scenario, estimator or key, a
@@ -263,6 +263,45 @@ def _summary_table(summary: dict[str, Any], ids: list[str]) -> Table:
     for row in rows:
         table.add_row(*row)
     return table
+
+
+@app.command()
+@_clean_errors
+def compare(
+    scenario: Annotated[list[str], typer.Option(
+        "-s", "--scenario", help="Scenario preset (repeat) \\[default: every preset but the SUMO cities, "
+                                 "which run only when named].")] = [],  # noqa: B006
+    estimator: Annotated[list[str], typer.Option(
+        "-e", "--estimator", help="Estimator (repeat) \\[default: every registered one].")] = [],  # noqa: B006
+    runs: Annotated[int, typer.Option(help="Monte Carlo runs per scenario.")] = 10,
+    seed: Annotated[int, typer.Option(help="The one seed of every number.")] = 0,
+    set_: Annotated[list[str], typer.Option(
+        "--set", help="Scenario parameter key=value, for every scenario compared.")] = [],  # noqa: B006
+    out: Annotated[Path, typer.Option(help="Output folder: one results folder per scenario, compare.md, "
+                                           "compare.json, compare.png.")] = Path("results/compare"),
+    backend: Annotated[str, typer.Option(help="serial, processes or dask.")] = "processes",
+    workers: Annotated[int | None, typer.Option(
+        help="Worker processes, for processes and dask \\[default: all cores].")] = None,
+    overwrite: Annotated[bool, typer.Option(
+        help="Write over results folders of another configuration.")] = False,
+    progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+) -> None:
+    """Run every estimator on every scenario whose sensors it needs: the method × scenario table."""
+    from cooploc.budget import check_memory
+    from cooploc.compare import default_presets, plan, run_compare
+
+    plans = plan(scenario or default_presets(), estimator, scenario_overrides=_pairs(set_, "--set"),
+                 runs=runs, seed=seed, backend=backend, workers=workers)
+    for p in plans:  # every refusal before the first run
+        if p.config is not None:
+            check_memory(p.config)
+            check_out(out / p.preset, p.config, overwrite)
+    folder = run_compare(plans, out, progress=progress)
+    for p in plans:
+        ran = len(p.config.estimators) if p.config is not None else 0
+        Console().print(f"{p.preset}: {ran} estimators run, {len(p.refused)} not applicable (reasons in "
+                        f"compare.md)", highlight=False)
+    Console().print(f"results: {folder}/ (compare.md, compare.json, compare.png, one folder per scenario)")
 
 
 @app.command("view")

@@ -116,6 +116,10 @@ class Preset:
     params : the family's `Params` with this preset's values.
     summary : one line for `cooploc list`.
     doc : which figure or table it reproduces, and what the paper left unstated.
+    bound : the registered estimator that bounds what the compared methods can reach on
+        this scenario (a known-association reference using the same sensors, e.g.
+        ``"oracle-kf"``), or None where no such reference exists; `cooploc compare`
+        gives every method's RMSE as a ratio to it.
     family : the registered family (set by `register_scenario`).
     generator : the family's `generate(params, rng)` (set by `register_scenario`).
     """
@@ -124,6 +128,7 @@ class Preset:
     params: Params
     summary: str
     doc: str = ""
+    bound: str | None = None
     family: str = ""
     generator: Callable[[Any, np.random.Generator], Recording] | None = None
 

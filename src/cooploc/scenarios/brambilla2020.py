@@ -262,11 +262,13 @@ PRESETS = register_scenario("brambilla2020", generate, [
         params=ROAD,
         summary="Brambilla 2020 §V-A: 2 vehicles at 25 km/h, 2 static sidewalk features d_f apart",
         doc="Reproduces Fig. 7 of Brambilla et al. (T-ITS 2020) with feature_spacing 0.5, 3, 6 m.",
+        bound="oracle-kf",
     ),
     Preset(
         name="brambilla-crossroad",
         params=BrambillaParams(),
         summary="Brambilla 2020 §V-B: 12 vehicles in 4 clusters at a junction, N_f sidewalk features",
         doc="Reproduces Figs. 8–11 of Brambilla et al. (T-ITS 2020): n_features, feature_speed.",
+        bound="oracle-kf",
     ),
 ])

@@ -187,5 +187,6 @@ PRESETS = register_scenario("froehle2018", generate, [
         params=FroehleParams(),
         summary="Fröhle 2018 §V-A: 2 vehicles (GNSS 0.01/15 m²), 3 crossing features, V2F 1 m²",
         doc="Reproduces Figs. 3–5 of Fröhle, Lindberg & Wymeersch (WCNC 2018).",
+        bound="oracle-kf",
     ),
 ])

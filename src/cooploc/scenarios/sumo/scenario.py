@@ -174,6 +174,7 @@ def _preset(network: str, regulation: str, **overrides: Any) -> Preset:
         summary=f"SUMO urban traffic, {label}, {lights}; GNSS zones A/B/C, V2F R_s = 50 m",
         doc=("Analogue of Brambilla et al. 2020 §VI (Figs. 16–17) on a SUMO network; see "
              "cooploc.scenarios.sumo for what differs from the paper's Turin arterial."),
+        bound="oracle-kf",
     )
 
 

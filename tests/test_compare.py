@@ -1,0 +1,156 @@
+"""`cooploc compare` (issue 14, item 3): the method × scenario table end to end, which
+estimators apply to a scenario, the scenarios' declared bounds, one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import cooploc.results
+from cooploc.cli import app
+from cooploc.compare import default_presets, plan
+from cooploc.errors import ConfigError
+from cooploc.experiment import run_generators
+from cooploc.registry import construct, estimators, get_estimator, get_preset, presets, unused_kinds
+
+runner = CliRunner()
+SMALL = ["--set", "n_steps=8", "--runs", "3", "--seed", "2", "--backend", "serial", "--no-progress"]
+NAMES = ["gnss-kf", "oracle-kf", "icp", "plbp"]
+
+
+def _strict(text: str) -> dict:
+    def refuse(constant: str) -> None:
+        raise AssertionError(f"not strict JSON: {constant}")
+    return json.loads(text, parse_constant=refuse)
+
+
+@pytest.fixture(scope="module")
+def compared(tmp_path_factory):
+    out = tmp_path_factory.mktemp("compare") / "out"
+    args = ["compare", "-s", "froehle2018", "-s", "brambilla-road", *(a for n in NAMES for a in ("-e", n)),
+            *SMALL, "--out", str(out)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_writes_the_tables_the_heat_map_and_a_results_folder_per_scenario(compared):
+    for preset in ("froehle2018", "brambilla-road"):
+        summary = _strict((compared / preset / "summary.json").read_text())
+        assert summary["runs"] == 3 and summary["complete"]
+    assert (compared / "compare.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    data = _strict((compared / "compare.json").read_text())
+    assert [t["scenario"] for t in data["scenarios"]] == ["froehle2018", "brambilla-road"]
+    for t in data["scenarios"]:
+        assert list(t["estimators"]) == NAMES and t["bound"] == "oracle-kf"
+    text = (compared / "compare.md").read_text()
+    assert "## froehle2018" in text and "## brambilla-road" in text
+    assert text.count("| `gnss-kf` |") == 3  # the overview and the two scenario tables
+    assert "| `icp` | n/a |" in text and "| *bound* | oracle-kf | oracle-kf |" in text
+
+
+def test_refused_estimators_are_listed_with_the_reason_never_a_number(compared):
+    data = _strict((compared / "compare.json").read_text())
+    froehle, road = data["scenarios"]
+    assert set(froehle["estimators"]["icp"]) == {"refused"}
+    assert "full relative state" in froehle["estimators"]["icp"]["refused"]
+    assert "needs the measurement kinds aoa" in road["estimators"]["plbp"]["refused"]
+    assert road["estimators"]["icp"]["vehicle_rmse"] > 0  # runs where its sensors are
+    summary = _strict((compared / "froehle2018" / "summary.json").read_text())
+    assert set(summary["estimators"]) == {"gnss-kf", "oracle-kf"}  # refused ones never ran
+    rows = [line for line in (compared / "compare.md").read_text().splitlines()
+            if line.startswith("| `icp` | not run |")]
+    assert len(rows) == 1 and "full relative state" in rows[0]  # froehle2018's table
+
+
+def test_ratios_and_interval_come_from_the_scenario_summaries(compared):
+    data = _strict((compared / "compare.json").read_text())
+    road = data["scenarios"][1]
+    summary = _strict((compared / "brambilla-road" / "summary.json").read_text())
+    icp = summary["estimators"]["icp"]["vehicle_rmse_all"]
+    row = road["estimators"]["icp"]
+    assert row["vehicle_rmse"] == icp
+    assert row["ratio_bound"] == pytest.approx(icp / summary["estimators"]["oracle-kf"]["vehicle_rmse_all"])
+    assert row["ratio_gnss_kf"] == pytest.approx(icp / summary["estimators"]["gnss-kf"]["vehicle_rmse_all"])
+    assert road["estimators"]["oracle-kf"]["ratio_bound"] == 1.0
+    low, high = row["interval_90"]
+    per_run = np.array(list(summary["estimators"]["icp"]["per_run_vehicle_rmse"].values()))
+    assert per_run.min() <= low <= high <= per_run.max()  # pooled over resampled runs
+    assert f"| `icp` | {icp:.2f} |" in (compared / "compare.md").read_text()
+
+
+def test_numbers_equal_those_of_cooploc_run(compared, tmp_path):
+    result = runner.invoke(app, ["run", "brambilla-road", "-e", "icp", *SMALL, "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    alone = _strict((tmp_path / "summary.json").read_text())["estimators"]["icp"]["vehicle_rmse_all"]
+    compared_icp = _strict((compared / "brambilla-road" / "summary.json").read_text())
+    assert compared_icp["estimators"]["icp"]["vehicle_rmse_all"] == alone
+
+
+def test_applicability_is_decided_by_construct_on_run_0s_setup():
+    [p] = plan(["zhang2016-cv"], ["gnss-kf", "kf-known-da"], scenario_overrides={"n_steps": 3}, runs=2,
+               seed=5, backend="serial")
+    assert [e.name for e in p.config.estimators] == ["kf-known-da"]
+    scenario_rng, rngs = run_generators(5, 0, ["gnss-kf"])
+    recording = get_preset("zhang2016-cv").generate(scenario_rng, p.config.scenario_params)
+    with pytest.raises(ConfigError) as refused:
+        construct(get_estimator("gnss-kf"), recording.setup, None, rngs["gnss-kf"])
+    assert p.refused == {"gnss-kf": str(refused.value)}
+    [nothing] = plan(["aoa-grid"], ["gnss-kf"], backend="serial")
+    assert nothing.config is None and "can use nothing" in nothing.refused["gnss-kf"]
+
+
+def test_a_scenario_where_nothing_runs_is_still_a_table(tmp_path):
+    result = runner.invoke(app, ["compare", "-s", "aoa-grid", "-e", "gnss-kf", "--runs", "1",
+                                 "--backend", "serial", "--no-progress", "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    [t] = _strict((tmp_path / "compare.json").read_text())["scenarios"]
+    assert t["results"] is None and t["bound"] is None and "refused" in t["estimators"]["gnss-kf"]
+    assert not (tmp_path / "aoa-grid").exists()
+    assert "no estimator can run here" in (tmp_path / "compare.md").read_text()
+
+
+def test_presets_declare_their_bound():
+    bounds = {name: p.bound for name, p in presets().items()}
+    assert bounds["froehle2018"] == bounds["brambilla-road"] == bounds["brambilla-crossroad"] == "oracle-kf"
+    assert {bounds[f"zhang2016-{v}"] for v in ("cv", "ct2", "ct4")} == {"kf-known-da"}
+    assert all(b == "oracle-kf" for n, b in bounds.items() if n.startswith("sumo-"))
+    assert all(bounds[n] is None for n in ("gulati-2v", "gulati-3v", "gulati-4v", "aoa-grid",
+                                           "aoa-grid-tracking"))
+    assert all(b is None or b in estimators() for b in bounds.values())
+    # gulati has none: oracle-kf would leave its odometry and radar aside, so it bounds nothing
+    gulati = get_preset("gulati-2v")
+    recording = gulati.generate(np.random.default_rng(0), gulati.params.with_overrides({"n_steps": 3}))
+    assert unused_kinds(get_estimator("oracle-kf"), recording.setup) == ("odometry", "radar")
+
+
+def test_default_presets_leave_out_the_sumo_cities():
+    names = default_presets()
+    assert "froehle2018" in names and "gulati-2v" in names
+    assert not any(n.startswith("sumo-") for n in names)
+
+
+@pytest.fixture
+def no_runs(monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("an experiment ran")
+    monkeypatch.setattr(cooploc.results, "run_to_folder", refuse)
+
+
+@pytest.mark.parametrize(("args", "parts"), [
+    (["-s", "nowhere"], ["unknown scenario 'nowhere'", "froehle2018"]),
+    (["-s", "froehle2018", "-e", "nobody"], ["unknown estimator 'nobody'", "gnss-kf"]),
+    (["-s", "froehle2018", "-s", "froehle2018"], ["'froehle2018' is listed twice"]),
+    (["-s", "froehle2018", "--set", "n_stepz=3"], ["n_stepz"]),
+])
+def test_mistakes_are_one_line_before_any_run(no_runs, tmp_path, args, parts):
+    result = runner.invoke(app, ["compare", *args, "--backend", "serial", "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    assert len(result.output.strip().splitlines()) == 1, result.output
+    for part in parts:
+        assert part in result.output
+    assert not (tmp_path / "x").exists()
