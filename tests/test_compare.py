@@ -121,6 +121,11 @@ def test_presets_declare_their_bound():
     assert all(bounds[n] is None for n in ("gulati-2v", "gulati-3v", "gulati-4v", "aoa-grid",
                                            "aoa-grid-tracking"))
     assert all(b is None or b in estimators() for b in bounds.values())
+    for name in ("froehle2018", "brambilla-road", "brambilla-crossroad", "zhang2016-cv"):  # it runs there
+        preset = get_preset(name)
+        recording = preset.generate(np.random.default_rng(0), preset.params.with_overrides({"n_steps": 3}))
+        rng = np.random.default_rng(1)
+        construct(get_estimator(preset.bound), recording.setup, None, rng, recording.truth)
     # gulati has none: oracle-kf would leave its odometry and radar aside, so it bounds nothing
     gulati = get_preset("gulati-2v")
     recording = gulati.generate(np.random.default_rng(0), gulati.params.with_overrides({"n_steps": 3}))

@@ -287,16 +287,24 @@ def compare(
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Run every estimator on every scenario whose sensors it needs: the method × scenario table."""
-    from cooploc.budget import check_memory
+    from cooploc.budget import check_memory, duration, estimate_seconds
     from cooploc.compare import default_presets, plan, run_compare
 
     plans = plan(scenario or default_presets(), estimator, scenario_overrides=_pairs(set_, "--set"),
                  runs=runs, seed=seed, backend=backend, workers=workers)
+    configs = [p.config for p in plans if p.config is not None]
     for p in plans:  # every refusal before the first run
         if p.config is not None:
             check_memory(p.config)
             check_out(out / p.preset, p.config, overwrite)
-    folder = run_compare(plans, out, progress=progress)
+    seconds = sum(estimate_seconds(c) for c in configs)
+    if seconds >= 3600:  # as `cooploc run`: said, not refused
+        typer.echo(f"note: this comparison needs at least {duration(seconds)} of computing", err=True)
+    try:
+        folder = run_compare(plans, out, progress=progress)
+    except KeyboardInterrupt:  # the finished runs are merged in their scenario's folder
+        typer.echo(f"interrupted: compare.md not written; the finished scenarios are in {out}/", err=True)
+        raise typer.Exit(130) from None
     for p in plans:
         ran = len(p.config.estimators) if p.config is not None else 0
         Console().print(f"{p.preset}: {ran} estimators run, {len(p.refused)} not applicable (reasons in "
