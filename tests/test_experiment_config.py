@@ -83,3 +83,19 @@ def test_same_experiment_ignores_backend_and_workers_only():
     assert config.same_experiment(config.with_overrides(backend="processes", workers=3))
     assert not config.same_experiment(config.with_overrides(runs=3))
     assert not config.same_experiment(config.with_overrides(scenario_overrides={"n_steps": 11}))
+
+
+def test_read_names_the_file_when_it_is_missing_or_not_toml(tmp_path):
+
+
+    with pytest.raises(ConfigError, match="no such file"):
+        ExperimentConfig.read(tmp_path / "config.toml")
+    (tmp_path / "config.toml").write_text("scenario = \n")
+    with pytest.raises(ConfigError, match=r"config\.toml is not valid TOML"):
+        ExperimentConfig.read(tmp_path / "config.toml")
+    config = ExperimentConfig.build("froehle2018", ["gnss-kf"], runs=2, seed=3, backend="serial")
+    import tomli_w
+
+    (tmp_path / "config.toml").write_text(tomli_w.dumps(
+        {k: v for k, v in config.to_dict().items() if v is not None}))
+    assert ExperimentConfig.read(tmp_path / "config.toml") == config

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
@@ -65,20 +64,6 @@ def _estimator_pairs(items: list[str]) -> dict[str, dict[str, str]]:
     return out
 
 
-def _read_config(path: Path) -> dict[str, Any]:
-    """The table of a config.toml given to --config."""
-    if not path.is_file():
-        raise ConfigError(f"--config: no such file {str(path)!r}")
-    if sys.version_info >= (3, 11):
-        import tomllib
-    else:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
-    try:
-        return tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"--config: {path} is not valid TOML: {exc}") from None
-
-
 def _on_command_line(ctx: typer.Context, name: str) -> bool:
     """Whether option `name` was typed (not left at its default)."""
     source = ctx.get_parameter_source(name)  # typer's own click: compare by name, not identity
@@ -102,7 +87,7 @@ def check_out(folder: Path, config: Any, overwrite: bool) -> None:
     marks = [folder / "summary.json", folder / "config.toml"]
     if not overwrite and any(m.exists() for m in marks):
         try:
-            previous = ExperimentConfig.from_dict(_read_config(marks[1]))
+            previous = ExperimentConfig.read(marks[1])
         except CooplocError:
             previous = None
         if previous is None or not previous.same_experiment(config):
@@ -180,7 +165,12 @@ def run(
     if out is not None and not out.strip():
         raise ConfigError(f"--out must name a folder, got {out!r}")
     if config is not None:
-        cfg = ExperimentConfig.from_dict(_read_config(config))
+        if not config.is_file():
+            raise ConfigError(f"--config: no such file {str(config)!r}")
+        try:
+            cfg = ExperimentConfig.read(config)
+        except ConfigError as exc:
+            raise ConfigError(f"--config: {exc}") from None
         if scenario and scenario != cfg.scenario:
             raise ConfigError(f"scenario {scenario!r} differs from {cfg.scenario!r} of --config {config}; "
                               f"leave it out to rerun the file's")

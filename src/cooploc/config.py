@@ -15,8 +15,11 @@ Running it is `cooploc.experiment`; writing its results, `cooploc.results`.
 from __future__ import annotations
 
 import dataclasses
+import os
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from cooploc._version import __version__
@@ -134,6 +137,25 @@ class ExperimentConfig:
             "scenario_params": self.scenario_params.to_dict(),
             "estimators": {e.name: e.params.to_dict() for e in self.estimators},
         }
+
+    @classmethod
+    def read(cls, path: str | os.PathLike[str]) -> ExperimentConfig:
+        """The configuration in a `config.toml` file (`from_dict` of its table).
+
+        A missing file or one that is not TOML is a `ConfigError` naming the path.
+        """
+        if sys.version_info >= (3, 11):
+            import tomllib
+        else:  # pragma: no cover - Python 3.10
+            import tomli as tomllib
+        path = Path(path)
+        if not path.is_file():
+            raise ConfigError(f"no such file {str(path)!r}")
+        try:
+            data = tomllib.loads(path.read_text())
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"{path} is not valid TOML: {exc}") from None
+        return cls.from_dict(data)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ExperimentConfig:

@@ -36,7 +36,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -370,7 +369,7 @@ def merge_runs(folder: str | os.PathLike[str], config: ExperimentConfig | None =
     folder's config.toml (e.g. to merge a folder whose process was killed)."""
     folder = Path(folder)
     if config is None:
-        config = ExperimentConfig.from_dict(_read_toml(folder / "config.toml"))
+        config = ExperimentConfig.read(folder / "config.toml")
     result = ExperimentResult(config, tuple(r for r in read_runs(folder) if 0 <= r.run < config.runs))
     write_results(result, folder, stopped_by=None if result.complete else stopped_by or "not finished")
     if result.complete:
@@ -379,11 +378,3 @@ def merge_runs(folder: str | os.PathLike[str], config: ExperimentConfig | None =
         with contextlib.suppress(OSError):  # not empty: files that are not ours stay
             (folder / RUNS_FOLDER).rmdir()
     return folder
-
-
-def _read_toml(path: Path) -> dict[str, Any]:
-    if sys.version_info >= (3, 11):
-        import tomllib
-    else:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
-    return tomllib.loads(path.read_text())

@@ -13,14 +13,13 @@ again with the same generators, so its numbers equal those of the original run.
 from __future__ import annotations
 
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from cooploc.errors import ConfigError, InvalidInputError
+from cooploc.errors import InvalidInputError
 from cooploc.types import Estimate, FloatArray, Recording
 
 __all__ = ["RunView", "load_run", "read_config", "regenerate"]
@@ -42,19 +41,12 @@ class RunView:
 
 def read_config(folder: Path) -> Any:
     """The `ExperimentConfig` of a results folder (its ``config.toml``)."""
-    from cooploc.experiment import ExperimentConfig
+    from cooploc.config import ExperimentConfig
 
-    if sys.version_info >= (3, 11):
-        import tomllib
-    else:  # pragma: no cover - Python 3.10
-        import tomli as tomllib
     path = folder / "config.toml"
     if not path.is_file():
         raise InvalidInputError(f"{folder}: not a results folder of `cooploc run` (no config.toml)")
-    try:
-        return ExperimentConfig.from_dict(tomllib.loads(path.read_text()))
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path} is not valid TOML: {exc}") from None
+    return ExperimentConfig.read(path)
 
 
 def regenerate(config: Any, run: int) -> Recording:
