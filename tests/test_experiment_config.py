@@ -86,7 +86,7 @@ def test_same_experiment_ignores_backend_and_workers_only():
 
 
 def test_read_names_the_file_when_it_is_missing_or_not_toml(tmp_path):
-
+    import tomli_w
 
     with pytest.raises(ConfigError, match="no such file"):
         ExperimentConfig.read(tmp_path / "config.toml")
@@ -94,8 +94,6 @@ def test_read_names_the_file_when_it_is_missing_or_not_toml(tmp_path):
     with pytest.raises(ConfigError, match=r"config\.toml is not valid TOML"):
         ExperimentConfig.read(tmp_path / "config.toml")
     config = ExperimentConfig.build("froehle2018", ["gnss-kf"], runs=2, seed=3, backend="serial")
-    import tomli_w
-
     (tmp_path / "config.toml").write_text(tomli_w.dumps(
         {k: v for k, v in config.to_dict().items() if v is not None}))
     assert ExperimentConfig.read(tmp_path / "config.toml") == config
