@@ -154,9 +154,14 @@ def kf_update_nis(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray
     return post, nis_of()
 
 
+def squared_mahalanobis(residual: FloatArray, cov: FloatArray) -> FloatArray:
+    """rᵀ P⁻¹ r of residuals (..., d) and covariances (..., d, d), by a solve (no inverse)."""
+    return np.einsum("...i,...i->...", residual, np.linalg.solve(cov, residual[..., None])[..., 0])
+
+
 def nis(innovation: FloatArray, S: FloatArray) -> FloatArray:
     """Normalised innovation squared νᵀ S⁻¹ ν of innovations (..., dz), covariances (..., dz, dz)."""
-    return np.einsum("...i,...i->...", innovation, np.linalg.solve(S, innovation[..., None])[..., 0])
+    return squared_mahalanobis(innovation, S)
 
 
 def _kf_update(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray

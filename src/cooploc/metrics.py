@@ -45,6 +45,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cooploc.errors import InvalidInputError
+from cooploc.gaussian import squared_mahalanobis
 from cooploc.geometry import wrap_angle
 from cooploc.types import (
     Estimate,
@@ -201,9 +202,7 @@ def score_association(recording: Recording, estimates: Sequence[Estimate]
 
 def nees(estimate: StateSet, true_states: FloatArray) -> FloatArray:
     """(x − x̂)ᵀ P⁻¹ (x − x̂) per entity; χ²(dx) distributed for a consistent filter."""
-    residual = true_states - estimate.mean
-    return np.einsum("ni,ni->n", residual,
-                     np.linalg.solve(estimate.cov, residual[..., None])[..., 0])
+    return squared_mahalanobis(true_states - estimate.mean, estimate.cov)
 
 
 def nees_band(samples: int, dim: int = 2, probability: float = 0.95) -> tuple[float, float]:
@@ -227,9 +226,7 @@ def _position_nees(est: StateSet, rows: npt.NDArray[np.bool_], true: FloatArray,
                    layout: StateLayout) -> FloatArray:
     """2-D position NEES of the estimates `rows` against their true states (n,)."""
     pos = list(layout.position)
-    residual = true[:, pos] - est.mean[rows][:, pos]
-    cov = est.cov[rows][:, pos][:, :, pos]
-    return np.einsum("ni,ni->n", residual, np.linalg.solve(cov, residual[..., None])[..., 0])
+    return squared_mahalanobis(true[:, pos] - est.mean[rows][:, pos], est.cov[rows][:, pos][:, :, pos])
 
 
 @dataclass(frozen=True)
