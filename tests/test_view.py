@@ -17,13 +17,13 @@ from typer.testing import CliRunner
 
 from cooploc.cli import app
 from cooploc.errors import CooplocError, InvalidInputError
-from cooploc.experiment import ExperimentConfig, run_experiment, run_one
+from cooploc.experiment import ExperimentConfig, run_experiment, run_one, run_recording
 from cooploc.metrics import evaluate
 from cooploc.results import write_results
 from cooploc.view import estimates as kept
 from cooploc.view import frames as frames_module
 from cooploc.view import write_animation, write_view
-from cooploc.view.data import load_run, regenerate
+from cooploc.view.data import load_run
 from cooploc.view.figure import build_figure
 from cooploc.view.frames import ellipses, frame_data
 from cooploc.view.scene import scene
@@ -298,7 +298,7 @@ def test_sumo_scene_has_the_network_lanes(tmp_path, monkeypatch):
 
     monkeypatch.setenv("COOPLOC_CACHE_DIR", str(tmp_path / "cache"))
     cfg = ExperimentConfig.build("sumo-grid-tlr", ["gnss-kf"], scenario_overrides=sumo.TINY_GRID, runs=1)
-    recording = regenerate(cfg, 0)
+    recording = run_recording(cfg, 0)
     found = scene(get_preset("sumo-grid-tlr"), cfg.scenario_params, recording)
     lanes = found.roads[np.isfinite(found.roads).all(axis=1)]
     assert len(lanes) > 4 and len(found.junctions)

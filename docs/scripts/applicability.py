@@ -1,20 +1,20 @@
 """The "where each method runs" table, computed from the registry (run at site build).
 
 For one preset of every scenario family, every registered estimator is constructed on a
-short recording exactly as the runner does (`cooploc.registry.construct`): a refusal
-gives the reason, an acceptance the measurement kinds the estimator leaves aside
-(`cooploc.registry.unused_kinds`). Printed as a Markdown page on stdout.
+short recording as `cooploc compare` decides it (`cooploc.compare.refusals`, i.e.
+`cooploc.registry.construct`): a refusal gives the reason, an acceptance the measurement
+kinds the estimator leaves aside (`cooploc.registry.unused_kinds`). Printed as a Markdown
+page on stdout.
 """
 
 from __future__ import annotations
 
 import re
 
-import numpy as np
-
-import cooploc
-from cooploc.errors import ConfigError
-from cooploc.registry import construct, estimators, get_estimator, unused_kinds
+from cooploc.compare import refusals
+from cooploc.config import ExperimentConfig
+from cooploc.experiment import run_recording
+from cooploc.registry import estimators, get_estimator, unused_kinds
 
 #: one preset per family, its column title, and the overrides that keep generation short
 FAMILIES = {
@@ -28,14 +28,20 @@ FAMILIES = {
 }
 
 
-def cell(name: str, recording: cooploc.Recording) -> str:
-    cls = get_estimator(name)
-    try:
-        construct(cls, recording.setup, None, np.random.default_rng(0), recording.truth)
-    except ConfigError as exc:
-        return "**no**: " + _short(str(exc).removeprefix(f"{name} "))
-    unused = unused_kinds(cls, recording.setup)
-    return "yes" + (f" (not {', '.join(unused)})" if unused else "")
+def cells(preset: str, overrides: dict) -> dict[str, str]:
+    """Per registered estimator, its cell on `preset`: the refusal or what it leaves aside."""
+    config = ExperimentConfig.build(preset, sorted(estimators()), scenario_overrides=overrides, runs=1,
+                                    backend="serial")
+    recording = run_recording(config, 0)
+    refused = refusals(config, recording)
+    out = {}
+    for name in sorted(estimators()):
+        if name in refused:
+            out[name] = "**no**: " + _short(refused[name].removeprefix(f"{name} "))
+        else:
+            unused = unused_kinds(get_estimator(name), recording.setup)
+            out[name] = "yes" + (f" (not {', '.join(unused)})" if unused else "")
+    return out
 
 
 def _short(reason: str) -> str:
@@ -48,13 +54,11 @@ def _short(reason: str) -> str:
 
 
 def table() -> str:
-    recordings = {preset: cooploc.get_preset(preset).generate(
-        np.random.default_rng(0), cooploc.get_preset(preset).params.with_overrides(over))
-        for preset, (_, over) in FAMILIES.items()}
+    columns = [cells(preset, over) for preset, (_, over) in FAMILIES.items()]
     lines = ["| estimator | " + " | ".join(title for title, _ in FAMILIES.values()) + " |",
              "| --- |" + " --- |" * len(FAMILIES)]
     for name in sorted(estimators()):
-        lines.append(f"| `{name}` | " + " | ".join(cell(name, r) for r in recordings.values()) + " |")
+        lines.append(f"| `{name}` | " + " | ".join(column[name] for column in columns) + " |")
     return "\n".join(lines)
 
 

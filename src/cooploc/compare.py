@@ -36,8 +36,9 @@ import numpy as np
 
 from cooploc.config import ExperimentConfig
 from cooploc.errors import ConfigError
-from cooploc.experiment import run_generators
+from cooploc.experiment import run_generators, run_recording
 from cooploc.registry import construct, estimators, get_estimator, get_preset, presets
+from cooploc.types import Recording
 
 __all__ = ["BOOTSTRAP", "ScenarioPlan", "default_presets", "plan", "run_compare", "tables",
            "write_compare"]
@@ -90,12 +91,11 @@ def plan(scenarios: Sequence[str], names: Sequence[str], *,
     return plans
 
 
-def refusals(config: ExperimentConfig) -> dict[str, str]:
-    """The estimators of `config` that `construct` refuses on the setup of its run 0,
-    each with the refusal's message."""
-    names = [e.name for e in config.estimators]
-    scenario_rng, rngs = run_generators(config.seed, 0, names)
-    recording = get_preset(config.scenario).generate(scenario_rng, config.scenario_params)
+def refusals(config: ExperimentConfig, recording: Recording | None = None) -> dict[str, str]:
+    """The estimators of `config` that `construct` refuses on the setup of its run 0 (or of
+    `recording`, if given), each with the refusal's message."""
+    recording = run_recording(config, 0) if recording is None else recording
+    _, rngs = run_generators(config.seed, 0, [e.name for e in config.estimators])
     out = {}
     for spec in config.estimators:
         try:

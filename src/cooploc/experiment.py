@@ -81,6 +81,7 @@ __all__ = [
     "run_experiment",
     "run_generators",
     "run_one",
+    "run_recording",
     "run_sweep",
 ]
 
@@ -184,6 +185,14 @@ def run_generators(seed: int, run: int, names: Sequence[str]
         for name in names
     }
     return np.random.default_rng(scenario_seq), estimator_rngs
+
+
+def run_recording(config: ExperimentConfig, run: int) -> Recording:
+    """The recording of run `run` of `config`: simulated from the run's scenario generator,
+    so the same, bit for bit, wherever and whenever it is made again (the viewer, the
+    paper experiments and `cooploc compare` rebuild runs this way instead of storing them)."""
+    scenario_rng, _ = run_generators(config.seed, run, [e.name for e in config.estimators])
+    return get_preset(config.scenario).generate(scenario_rng, config.scenario_params)
 
 
 class StepTimer:
@@ -290,10 +299,8 @@ def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = No
     other estimators go on. The estimates are kept in the result (for the viewer) for
     run 0, or as `keep_estimates` says.
     """
-    preset = get_preset(config.scenario)
-    names = [e.name for e in config.estimators]
-    scenario_rng, estimator_rngs = run_generators(config.seed, run, names)
-    recording = preset.generate(scenario_rng, config.scenario_params)
+    recording = run_recording(config, run)
+    _, estimator_rngs = run_generators(config.seed, run, [e.name for e in config.estimators])
     errors, seconds, steps, association, discarded, ospa, unused, nis = {}, {}, {}, {}, {}, {}, {}, {}
     failures = {}
     kept: dict[str, list[Estimate]] | None = {} if (run == 0 if keep_estimates is None

@@ -36,9 +36,10 @@ from cooploc.experiment import (
     estimate,
     run_experiment,
     run_generators,
+    run_recording,
     run_sweep,
 )
-from cooploc.registry import estimators, get_preset, make_estimator
+from cooploc.registry import estimators, make_estimator
 from cooploc.types import Estimate, Recording
 
 __all__ = [
@@ -47,7 +48,6 @@ __all__ = [
     "ReproduceOptions",
     "registered",
     "replay",
-    "replay_recording",
 ]
 
 
@@ -167,16 +167,10 @@ class ReproduceContext:
         return results
 
 
-def replay_recording(config: ExperimentConfig, run: int) -> Recording:
-    """The recording of run `run` of `config`, simulated again from the run's seed."""
-    scenario_rng, _ = run_generators(config.seed, run, [e.name for e in config.estimators])
-    return get_preset(config.scenario).generate(scenario_rng, config.scenario_params)
-
-
 def replay(config: ExperimentConfig, run: int = 0) -> tuple[Recording, dict[str, list[Estimate]]]:
     """Run `run` of `config` again, keeping what `run_experiment` scores and drops: the
     recording and every estimator's estimates (smoothed where it smooths)."""
-    recording = replay_recording(config, run)
+    recording = run_recording(config, run)
     _, rngs = run_generators(config.seed, run, [e.name for e in config.estimators])
     estimates = {}
     for spec in config.estimators:

@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from cooploc.experiment import ExperimentConfig, ExperimentResult
+from cooploc.experiment import ExperimentConfig, ExperimentResult, run_recording
 from cooploc.metrics import FEATURE, VEHICLE
 from cooploc.plots import format_number, line_panels
-from cooploc.reproduce.base import PaperExperiment, ReproduceContext, registered, replay_recording
+from cooploc.reproduce.base import PaperExperiment, ReproduceContext, registered
 from cooploc.results import summarize
 
 __all__ = ["EXPERIMENT", "FEATURE_COUNTS", "FEATURE_SPACINGS", "FEATURE_SPEEDS"]
@@ -67,7 +67,7 @@ def _signed_distances(config: ExperimentConfig) -> dict[int, tuple[np.ndarray, n
     """
     out = {}
     for r in range(config.runs):
-        truth = replay_recording(config, r).truth
+        truth = run_recording(config, r).truth
         p, v = truth.vehicle_states[..., :2], truth.vehicle_states[..., 2:4]
         sign = np.where(np.einsum("tni,tni->tn", p, v) < 0, 1.0, -1.0)
         out[r] = (sign * np.linalg.norm(p, axis=2), truth.vehicle_ids)

@@ -2,9 +2,9 @@
 
 A results folder of `cooploc run` holds ``config.toml`` (scenario, parameters, seed,
 estimators), ``errors.parquet`` and ``estimates.parquet`` (run 0's estimates). The
-recording is not stored: `regenerate(config, run)` simulates it again, exactly, from
-the seed (`cooploc.experiment.run_generators`, then the preset's `generate`; SUMO
-traffic comes from its cache or is simulated again, deterministically). Storing it
+recording is not stored: `cooploc.experiment.run_recording(config, run)` simulates it
+again, exactly, from the seed (SUMO traffic comes from its cache or is simulated again,
+deterministically). Storing it
 would cost more than the rest of the folder (every measurement of every step) for no
 information. A run whose estimates were not kept (``--run N`` with N > 0) is run
 again with the same generators, so its numbers equal those of the original run.
@@ -22,7 +22,7 @@ import numpy as np
 from cooploc.errors import InvalidInputError
 from cooploc.types import Estimate, FloatArray, Recording
 
-__all__ = ["RunView", "load_run", "read_config", "regenerate"]
+__all__ = ["RunView", "load_run", "read_config"]
 
 
 @dataclass(frozen=True)
@@ -49,15 +49,6 @@ def read_config(folder: Path) -> Any:
     return ExperimentConfig.read(path)
 
 
-def regenerate(config: Any, run: int) -> Recording:
-    """The recording of run `run`, simulated again from the config's seed (bit for bit)."""
-    from cooploc.experiment import run_generators
-    from cooploc.registry import get_preset
-
-    scenario_rng, _ = run_generators(config.seed, run, [e.name for e in config.estimators])
-    return get_preset(config.scenario).generate(scenario_rng, config.scenario_params)
-
-
 def _rmse_over_time(folder: Path, run: int) -> dict[str, tuple[FloatArray, FloatArray]]:
     """Per estimator, (t, RMSE over the vehicles) of every step of `run` from errors.parquet."""
     import pyarrow.compute as pc
@@ -81,7 +72,7 @@ def _rmse_over_time(folder: Path, run: int) -> dict[str, tuple[FloatArray, Float
 
 def load_run(folder: str | os.PathLike[str], run: int = 0) -> RunView:
     """Config, regenerated recording, estimates (kept, or run again) and RMSE of one run."""
-    from cooploc.experiment import run_one
+    from cooploc.experiment import run_one, run_recording
     from cooploc.registry import get_preset
     from cooploc.view.estimates import read_estimates
 
@@ -92,7 +83,7 @@ def load_run(folder: str | os.PathLike[str], run: int = 0) -> RunView:
     if isinstance(run, bool) or run < 0 or run >= config.runs:
         raise InvalidInputError(f"--run must lie in [0, {config.runs - 1}] for {folder} "
                                 f"({config.runs} runs), got {run}")
-    recording = regenerate(config, run)
+    recording = run_recording(config, run)
     estimates = read_estimates(folder, run, len(recording.frames), recording.setup.vehicle_layout.dim)
     recomputed = estimates is None
     if estimates is None:

@@ -28,7 +28,7 @@ set_valued     bool            the estimator's vehicle ids are slots, not identi
 =============  ==============  ===========================================================
 
 The recording itself is not stored: it is regenerated exactly from ``config.toml``
-(scenario, parameters, seed) by `cooploc.view.data.regenerate`.
+(scenario, parameters, seed) by `cooploc.experiment.run_recording`.
 """
 
 from __future__ import annotations
