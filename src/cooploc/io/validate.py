@@ -75,6 +75,10 @@ class _Checker:
     def __init__(self, recording: Recording, files: bool) -> None:
         self.recording = recording
         self.files = files
+        setup, truth = recording.setup, recording.truth
+        self.infrastructure = np.asarray(setup.infrastructure_ids, dtype=np.int64)
+        prior = np.zeros(0, np.int64) if setup.feature_prior is None else setup.feature_prior.ids
+        self.features = np.union1d(truth.feature_ids, prior).astype(np.int64)  # truth's and the prior's
 
     def fail(self, where: _Where, message: str) -> InvalidInputError:
         return InvalidInputError(f"{where.file if self.files else where.attribute}: {message}")
@@ -142,23 +146,18 @@ class _Checker:
                                    f"{float(t[k])!r}) {how}")
 
     def ids(self) -> None:
-        setup, truth = self.recording.setup, self.recording.truth
-        infrastructure = np.asarray(setup.infrastructure_ids, dtype=np.int64)
+        truth = self.recording.truth
+        infrastructure = self.infrastructure
         values, counts = np.unique(infrastructure, return_counts=True)
         if (counts > 1).any():
             raise self.fail(_INFRASTRUCTURE, f"id {int(values[counts > 1][0])} appears twice")
-        for a_name, a, b_name, b in (("vehicle", truth.vehicle_ids, "feature", self.feature_ids()),
+        for a_name, a, b_name, b in (("vehicle", truth.vehicle_ids, "feature", self.features),
                                      ("vehicle", truth.vehicle_ids, "infrastructure", infrastructure),
-                                     ("feature", self.feature_ids(), "infrastructure", infrastructure)):
+                                     ("feature", self.features, "infrastructure", infrastructure)):
             both = np.intersect1d(a, b)
             if both.size:
                 where = _INFRASTRUCTURE if b_name == "infrastructure" else _FEATURE_PRIOR
                 raise self.fail(where, f"ids {both.tolist()} are both {a_name} and {b_name} ids")
-
-    def feature_ids(self) -> IntArray:
-        setup, truth = self.recording.setup, self.recording.truth
-        prior = np.zeros(0, np.int64) if setup.feature_prior is None else setup.feature_prior.ids
-        return np.union1d(truth.feature_ids, prior).astype(np.int64)
 
     def gather_rows(self) -> dict[str, np.ndarray]:
         """Every measurement row of the recording, flat: step, batch, sensor, subject, origin."""
@@ -226,14 +225,13 @@ class _Checker:
         present = np.zeros_like(known)
         for j, table in enumerate((in_frame, in_frame, truth.vehicle_present)):
             present[j, known[j]] = table[steps[j, known[j]], col[j, known[j]]]
-        infrastructure = np.isin(rows["sensor"], np.asarray(setup.infrastructure_ids, np.int64))
-        features = self.feature_ids()
+        infrastructure = np.isin(rows["sensor"], self.infrastructure)
+        features = self.features
         if truth.feature_ids.size == 0 and setup.feature_layout is not None:
             # feature truth not recorded: any id that is not a vehicle or sensor is a feature
-            not_feature = np.isin(rows["subject"], np.asarray(setup.infrastructure_ids, np.int64))
+            not_feature = np.isin(rows["subject"], self.infrastructure)
             subject_feature = ~known[1] & ~not_feature
-            origin_feature = ~known[2] & ~np.isin(rows["origin"],
-                                                  np.asarray(setup.infrastructure_ids, np.int64))
+            origin_feature = ~known[2] & ~np.isin(rows["origin"], self.infrastructure)
         else:
             subject_feature = np.isin(rows["subject"], features)
             origin_feature = np.isin(rows["origin"], features)
