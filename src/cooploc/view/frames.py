@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cooploc.gaussian import squared_mahalanobis
 from cooploc.metrics import optimal_assignment
 from cooploc.types import Estimate, FloatArray, IntArray, Recording, StateSet, lookup_ids
 
@@ -147,7 +148,7 @@ def _scored(est_xy: FloatArray, est_cov: FloatArray, est_ids: IntArray, true_ids
         rows, cols = np.flatnonzero(found), col[found]
     e = true_xy[cols] - est_xy[rows]
     error[rows] = np.hypot(e[:, 0], e[:, 1])
-    nees[rows] = np.einsum("ni,ni->n", e, np.linalg.solve(est_cov[rows], e[..., None])[..., 0])
+    nees[rows] = squared_mahalanobis(e, est_cov[rows])
     return error, nees
 
 
