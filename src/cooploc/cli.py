@@ -70,6 +70,28 @@ def _on_command_line(ctx: typer.Context, name: str) -> bool:
     return source is not None and source.name == "COMMANDLINE"
 
 
+SCHEDULER_HELP = ("Address of a running Dask scheduler (tcp://HOST:PORT) to send the runs to; implies "
+                  "--backend dask \\[default: $DASK_SCHEDULER_ADDRESS, else dask's scheduler-address, "
+                  "else a local cluster].")
+THREADS_HELP = ("BLAS/OpenMP/numba threads of the serial backend \\[default: the libraries' own, every "
+                "core]; worker processes always run one thread each.")
+
+
+def _backend_of(ctx: typer.Context, backend: str, scheduler: str | None) -> str:
+    """The backend: a scheduler address given without --backend means dask."""
+    return "dask" if scheduler is not None and not _on_command_line(ctx, "backend") else backend
+
+
+def _check_threads(threads: int | None, backend: str) -> None:
+    if threads is None:
+        return
+    if threads < 1:
+        raise ConfigError(f"--threads must be a positive integer, got {threads}")
+    if backend != "serial":
+        raise ConfigError(f"--threads sets the threads of the serial backend; the {backend} backend runs "
+                          f"one thread per worker (use --workers); got --threads {threads}")
+
+
 def check_out(folder: Path, config: Any, overwrite: bool) -> None:
     """Refuse, before any run, an output folder that cannot be written or that holds the
     results of another configuration (unless `overwrite`).
@@ -148,6 +170,11 @@ def run(
     backend: Annotated[str, typer.Option(help="serial, processes or dask.")] = "processes",
     workers: Annotated[int | None, typer.Option(
         help="Worker processes, for processes and dask \\[default: all cores].")] = None,
+    scheduler: Annotated[str | None, typer.Option(help=SCHEDULER_HELP)] = None,
+    threads: Annotated[int | None, typer.Option(help=THREADS_HELP)] = None,
+    resume: Annotated[bool, typer.Option(
+        "--resume", help="Go on with an interrupted study in --out: its finished runs are kept, the "
+                         "others run (the folder must hold the same experiment).")] = False,
     config: Annotated[Path | None, typer.Option(
         help="Rerun the config.toml of a results folder, into that folder; -e, --runs, --seed, --set, "
              "--est-set, --backend and --workers given with it override the file's values.")] = None,
@@ -158,12 +185,16 @@ def run(
     view: Annotated[bool, typer.Option("--view", help="Also write view.html (see `cooploc view`).")] = False,
 ) -> None:
     """Run estimators on a scenario for N Monte Carlo runs and write a results folder."""
+    from cooploc.backends import limit_threads
     from cooploc.budget import check_memory, duration, estimate_seconds
     from cooploc.experiment import ExperimentConfig
-    from cooploc.results import run_to_folder
+    from cooploc.results import finished_runs, run_to_folder
 
     if out is not None and not out.strip():
         raise ConfigError(f"--out must name a folder, got {out!r}")
+    if resume and overwrite:
+        raise ConfigError("--resume keeps the finished runs of --out and --overwrite replaces them: give one")
+    backend = _backend_of(ctx, backend, scheduler)
     if config is not None:
         if not config.is_file():
             raise ConfigError(f"--config: no such file {str(config)!r}")
@@ -175,8 +206,10 @@ def run(
             raise ConfigError(f"scenario {scenario!r} differs from {cfg.scenario!r} of --config {config}; "
                               f"leave it out to rerun the file's")
         given = {name: value for name, value in (("runs", runs), ("seed", seed), ("backend", backend),
-                                                  ("workers", workers))
+                                                  ("workers", workers), ("scheduler", scheduler))
                  if _on_command_line(ctx, name)}
+        if scheduler is not None:
+            given["backend"] = backend
         cfg = cfg.with_overrides(estimator or None, scenario_overrides=_pairs(set_, "--set"),
                                  estimator_overrides=_estimator_pairs(est_set), **given)
         folder = Path(out) if out is not None else config.parent
@@ -186,17 +219,21 @@ def run(
         cfg = ExperimentConfig.build(
             scenario, estimator, scenario_overrides=_pairs(set_, "--set"),
             estimator_overrides=_estimator_pairs(est_set), runs=runs, seed=seed,
-            backend=backend, workers=workers,
+            backend=backend, workers=workers, scheduler=scheduler,
         )
         folder = Path(out) if out is not None else Path("results") / cfg.scenario
+    _check_threads(threads, cfg.backend)
     check_memory(cfg)
     existed = folder.exists()
+    if resume:
+        finished_runs(folder, cfg)  # another experiment in the folder: refused, saying what differs
     check_out(folder, cfg, overwrite)
     seconds = estimate_seconds(cfg)
     if seconds >= 3600:  # not refused (a long study may be meant), but said before it starts
         typer.echo(f"note: this experiment needs at least {duration(seconds)} of computing", err=True)
     try:
-        run_to_folder(cfg, folder, progress=progress)  # run by run: Ctrl-C keeps the finished runs
+        with limit_threads(threads):  # run by run: Ctrl-C keeps the finished runs, --resume goes on
+            run_to_folder(cfg, folder, progress=progress, resume=resume)
     except KeyboardInterrupt:
         _print_summary(folder)
         raise typer.Exit(130) from None
@@ -258,6 +295,7 @@ def _summary_table(summary: dict[str, Any], ids: list[str]) -> Table:
 @app.command()
 @_clean_errors
 def compare(
+    ctx: typer.Context,
     scenario: Annotated[list[str], typer.Option(
         "-s", "--scenario", help="Scenario preset (repeat) \\[default: every preset but the SUMO cities, "
                                  "which run only when named].")] = [],  # noqa: B006
@@ -272,26 +310,39 @@ def compare(
     backend: Annotated[str, typer.Option(help="serial, processes or dask.")] = "processes",
     workers: Annotated[int | None, typer.Option(
         help="Worker processes, for processes and dask \\[default: all cores].")] = None,
+    scheduler: Annotated[str | None, typer.Option(help=SCHEDULER_HELP)] = None,
+    threads: Annotated[int | None, typer.Option(help=THREADS_HELP)] = None,
     overwrite: Annotated[bool, typer.Option(
         help="Write over results folders of another configuration.")] = False,
+    resume: Annotated[bool, typer.Option(
+        "--resume", help="Go on with an interrupted comparison in --out: finished runs are kept.")] = False,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Run every estimator on every scenario whose sensors it needs: the method × scenario table."""
+    from cooploc.backends import limit_threads
     from cooploc.budget import check_memory, duration, estimate_seconds
     from cooploc.compare import default_presets, plan, run_compare
+    from cooploc.results import finished_runs
 
+    if resume and overwrite:
+        raise ConfigError("--resume keeps the finished runs of --out and --overwrite replaces them: give one")
+    backend = _backend_of(ctx, backend, scheduler)
+    _check_threads(threads, backend)
     plans = plan(scenario or default_presets(), estimator, scenario_overrides=_pairs(set_, "--set"),
-                 runs=runs, seed=seed, backend=backend, workers=workers)
+                 runs=runs, seed=seed, backend=backend, workers=workers, scheduler=scheduler)
     configs = [p.config for p in plans if p.config is not None]
     for p in plans:  # every refusal before the first run
         if p.config is not None:
             check_memory(p.config)
+            if resume:
+                finished_runs(out / p.preset, p.config)
             check_out(out / p.preset, p.config, overwrite)
     seconds = sum(estimate_seconds(c) for c in configs)
     if seconds >= 3600:  # as `cooploc run`: said, not refused
         typer.echo(f"note: this comparison needs at least {duration(seconds)} of computing", err=True)
     try:
-        folder = run_compare(plans, out, progress=progress)
+        with limit_threads(threads):
+            folder = run_compare(plans, out, progress=progress, resume=resume)
     except KeyboardInterrupt:  # the finished runs are merged in their scenario's folder
         typer.echo(f"interrupted: compare.md not written; the finished scenarios are in {out}/", err=True)
         raise typer.Exit(130) from None
@@ -322,6 +373,7 @@ def view_cmd(
 @app.command()
 @_clean_errors
 def reproduce(
+    ctx: typer.Context,
     paper: Annotated[str, typer.Argument(help="Paper experiment, see `cooploc list`.")],
     runs: Annotated[int | None, typer.Option(help="Runs per point \\[default: the paper's].")] = None,
     seed: Annotated[int, typer.Option(help="The one seed of every number.")] = 0,
@@ -330,19 +382,26 @@ def reproduce(
     backend: Annotated[str, typer.Option(help="serial, processes or dask.")] = "processes",
     workers: Annotated[int | None, typer.Option(
         help="Worker processes, for processes and dask \\[default: all cores].")] = None,
+    scheduler: Annotated[str | None, typer.Option(help=SCHEDULER_HELP)] = None,
+    threads: Annotated[int | None, typer.Option(help=THREADS_HELP)] = None,
     quick: Annotated[bool, typer.Option(help="Small version to check the pipeline.")] = False,
     progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
 ) -> None:
     """Reproduce a paper's figures: PNG files and a Markdown report beside the paper's numbers."""
+    from cooploc.backends import limit_threads
     from cooploc.experiment import ExperimentConfig
     from cooploc.reproduce import ReproduceOptions, get_experiment
 
     experiment = get_experiment(paper)
     if runs is not None and runs < 1:
         raise ConfigError(f"runs must be a positive integer, got {runs}")
-    ExperimentConfig.check_backend(backend, workers)
+    backend = _backend_of(ctx, backend, scheduler)
+    ExperimentConfig.check_backend(backend, workers, scheduler)
+    _check_threads(threads, backend)
     folder = out or Path("results") / f"reproduce-{paper}"
-    experiment.run(ReproduceOptions(folder, runs, seed, backend, workers, quick, progress))
+    with limit_threads(threads):
+        experiment.run(ReproduceOptions(folder, runs, seed, backend, workers, quick, progress,
+                                        scheduler=scheduler))
     Console().print(f"{experiment.title}: report at {folder / 'report.md'}")
 
 

@@ -70,7 +70,8 @@ class ScenarioPlan:
 
 def plan(scenarios: Sequence[str], names: Sequence[str], *,
          scenario_overrides: Mapping[str, Any] | None = None, runs: int = 10, seed: int = 0,
-         backend: str = "processes", workers: int | None = None) -> list[ScenarioPlan]:
+         backend: str = "processes", workers: int | None = None,
+         scheduler: str | None = None) -> list[ScenarioPlan]:
     """Resolve the comparison before anything runs: unknown names, bad overrides and
     repeated entries are one `ConfigError` each. `names` empty: every registered
     estimator."""
@@ -83,7 +84,7 @@ def plan(scenarios: Sequence[str], names: Sequence[str], *,
     plans = []
     for scenario in scenarios:
         full = ExperimentConfig.build(scenario, names, scenario_overrides=scenario_overrides, runs=runs,
-                                      seed=seed, backend=backend, workers=workers)
+                                      seed=seed, backend=backend, workers=workers, scheduler=scheduler)
         refused = refusals(full)
         runnable = [n for n in names if n not in refused]
         plans.append(ScenarioPlan(scenario, full.with_overrides(runnable) if runnable else None,
@@ -107,14 +108,15 @@ def refusals(config: ExperimentConfig, recording: Recording | None = None) -> di
 
 
 def run_compare(plans: Sequence[ScenarioPlan], out: str | os.PathLike[str], *,
-                progress: bool = False) -> Path:
-    """Run every plan into ``out/<preset>/``, then write compare.json, compare.md, compare.png."""
+                progress: bool = False, resume: bool = False) -> Path:
+    """Run every plan into ``out/<preset>/``, then write compare.json, compare.md, compare.png;
+    `resume` keeps the runs each folder has already (`cooploc.results.run_to_folder`)."""
     from cooploc.results import run_to_folder
 
     folder = Path(out)
     for p in plans:
         if p.config is not None:
-            run_to_folder(p.config, folder / p.preset, progress=progress)
+            run_to_folder(p.config, folder / p.preset, progress=progress, resume=resume)
     return write_compare(plans, folder)
 
 

@@ -1,13 +1,14 @@
 """The configuration of a Monte Carlo experiment (DESIGN §6): what `config.toml` holds.
 
 `ExperimentConfig` is the fully resolved configuration — scenario preset and its
-parameters, estimators with theirs, runs, seed, backend, workers — built from names and
+parameters, estimators with theirs, runs, seed, backend, workers, the Dask scheduler
+address — built from names and
 overrides (`build`, the command line's `--set`/`--est-set` strings parsed by the
 parameters' types), read back from `config.toml` (`from_dict`, every key and type
 checked: a mistake is one `ConfigError` naming the key and value), and changed by the
 command line's overrides of a `--config` rerun (`with_overrides`). `same_experiment`
-tells whether two configurations give the same numbers (backend and workers aside),
-which decides whether a results folder may be written over.
+tells whether two configurations give the same numbers (backend, workers and scheduler
+aside), which decides whether a results folder may be written over or resumed.
 
 Running it is `cooploc.experiment`; writing its results, `cooploc.results`.
 """
@@ -54,13 +55,14 @@ class ExperimentConfig:
     seed: int = 0
     backend: str = "processes"
     workers: int | None = None
+    scheduler: str | None = None  # address of a running Dask scheduler (backend "dask")
 
     def __post_init__(self) -> None:
         for key, value, low in (("runs", self.runs, 1), ("seed", self.seed, 0)):
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 what = "a positive" if low == 1 else "a non-negative"
                 raise ConfigError(f"{key} must be {what} integer, got {value!r}")
-        self.check_backend(self.backend, self.workers)
+        self.check_backend(self.backend, self.workers, self.scheduler)
         if not self.estimators:
             raise ConfigError("at least one estimator is needed (-e NAME)")
         names = [e.name for e in self.estimators]
@@ -68,8 +70,10 @@ class ExperimentConfig:
             raise ConfigError(f"estimators are listed twice: {names}")
 
     @staticmethod
-    def check_backend(backend: Any, workers: Any) -> None:
-        """Refuse an unknown backend, a bad worker count, or workers with the serial backend."""
+    def check_backend(backend: Any, workers: Any, scheduler: Any = None) -> None:
+        """Refuse an unknown backend, a bad worker count, workers with the serial backend, or a
+        scheduler address with another backend than dask, or with workers (a running
+        cluster has the workers it has)."""
         if not isinstance(backend, str) or backend not in BACKENDS:
             raise ConfigError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
         if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
@@ -78,6 +82,17 @@ class ExperimentConfig:
             # a worker count that nothing uses would be silently ignored
             raise ConfigError(f"workers apply to the processes and dask backends, not serial; "
                               f"got workers = {workers}")
+        if scheduler is None:
+            return
+        if not isinstance(scheduler, str) or not scheduler.strip() or any(c.isspace() for c in scheduler):
+            raise ConfigError(f"scheduler must be the address of a Dask scheduler (tcp://HOST:PORT), "
+                              f"got {scheduler!r}")
+        if backend != "dask":
+            raise ConfigError(f"a scheduler address applies to the dask backend, not {backend}; "
+                              f"got scheduler = {scheduler!r} (add --backend dask)")
+        if workers is not None:
+            raise ConfigError(f"workers size a local cluster; the cluster at {scheduler} has its own "
+                              f"workers; got workers = {workers}")
 
     @classmethod
     def build(
@@ -91,12 +106,13 @@ class ExperimentConfig:
         seed: int = 0,
         backend: str = "processes",
         workers: int | None = None,
+        scheduler: str | None = None,
     ) -> ExperimentConfig:
         """Resolve names and overrides (strings are parsed by the params' field types)."""
         preset = get_preset(scenario)
         specs = _specs(estimators, {}, estimator_overrides or {})
         return cls(scenario, preset.params.with_overrides(scenario_overrides or {}), specs,
-                   runs, seed, backend, workers)
+                   runs, seed, backend, workers, scheduler)
 
     def with_overrides(
         self,
@@ -108,22 +124,27 @@ class ExperimentConfig:
         seed: int | None = None,
         backend: str | None = None,
         workers: int | None = None,
+        scheduler: str | None = None,
     ) -> ExperimentConfig:
         """A copy with what is given replaced (`cooploc run --config FILE` plus options).
 
         `estimators` replaces the list: an estimator already in the config keeps its
         parameters, a new one starts from its defaults; then `estimator_overrides` and
         `scenario_overrides` are applied on top (strings parsed as in `build`). A backend
-        given without workers drops the config's workers where the backend takes none.
+        given without workers drops the config's workers where the backend takes none, and
+        the config's scheduler unless it is dask; a scheduler given drops the workers.
         """
         names = [e.name for e in self.estimators] if estimators is None else list(estimators)
         backend = self.backend if backend is None else backend
-        if workers is None and backend != "serial":
+        if scheduler is None and backend == "dask" and workers is None:
+            scheduler = self.scheduler
+        if workers is None and backend != "serial" and scheduler is None:
             workers = self.workers
         return type(self)(
             self.scenario, self.scenario_params.with_overrides(scenario_overrides or {}),
             _specs(names, {e.name: e.params for e in self.estimators}, estimator_overrides or {}),
-            self.runs if runs is None else runs, self.seed if seed is None else seed, backend, workers)
+            self.runs if runs is None else runs, self.seed if seed is None else seed, backend, workers,
+            scheduler)
 
     def to_dict(self) -> dict[str, Any]:
         """Everything needed to rerun, as plain data (written to config.toml)."""
@@ -134,6 +155,7 @@ class ExperimentConfig:
             "seed": self.seed,
             "backend": self.backend,
             "workers": self.workers,
+            "scheduler": self.scheduler,
             "scenario_params": self.scenario_params.to_dict(),
             "estimators": {e.name: e.params.to_dict() for e in self.estimators},
         }
@@ -192,12 +214,35 @@ class ExperimentConfig:
             specs.append(EstimatorSpec(name, get_estimator(name).Params.from_dict(params)))
         return cls(scenario, type(preset.params).from_dict(scenario_params), tuple(specs),
                    runs=data.get("runs", 10), seed=data.get("seed", 0),
-                   backend=data.get("backend", "processes"), workers=data.get("workers"))
+                   backend=data.get("backend", "processes"), workers=data.get("workers"),
+                   scheduler=data.get("scheduler"))
 
     def same_experiment(self, other: ExperimentConfig) -> bool:
-        """Whether `other` gives the same numbers: all but the backend and the workers agree."""
-        return dataclasses.replace(self, backend="serial", workers=None) == dataclasses.replace(
-            other, backend="serial", workers=None)
+        """Whether `other` gives the same numbers: all but the backend, the workers and the
+        scheduler agree."""
+        def numbers(config: ExperimentConfig) -> ExperimentConfig:
+            return dataclasses.replace(config, backend="serial", workers=None, scheduler=None)
+
+        return numbers(self) == numbers(other)
+
+    def differences(self, other: ExperimentConfig) -> list[tuple[str, Any, Any]]:
+        """(key, value here, value in `other`) of every setting that changes the numbers and
+        differs (backend, workers and scheduler do not count); dotted keys inside
+        scenario_params and estimators, e.g. ``scenario_params.n_steps``. Empty where only
+        the order of the estimators differs."""
+        ignored = ("cooploc_version", "backend", "workers", "scheduler")
+        mine, theirs = self.to_dict(), other.to_dict()
+        out = []
+        for key in mine:
+            if key in ignored or mine[key] == theirs[key]:
+                continue
+            if isinstance(mine[key], Mapping) and isinstance(theirs[key], Mapping):
+                for sub in sorted(set(mine[key]) | set(theirs[key])):
+                    if mine[key].get(sub) != theirs[key].get(sub):
+                        out.append((f"{key}.{sub}", mine[key].get(sub), theirs[key].get(sub)))
+            else:
+                out.append((key, mine[key], theirs[key]))
+        return out
 
 
 def _specs(names: Sequence[str], params: Mapping[str, Params],
@@ -211,5 +256,5 @@ def _specs(names: Sequence[str], params: Mapping[str, Params],
 
 
 #: the keys of `ExperimentConfig.to_dict` (config.toml)
-_CONFIG_KEYS = ("cooploc_version", "scenario", "runs", "seed", "backend", "workers",
+_CONFIG_KEYS = ("cooploc_version", "scenario", "runs", "seed", "backend", "workers", "scheduler",
                 "scenario_params", "estimators")

@@ -347,14 +347,17 @@ def _run_task(task: Task) -> RunResult:
 
 def execute(tasks: Iterable[Task], backend: str = "processes", workers: int | None = None,
             progress: Callable[[], None] | None = None,
-            on_result: Callable[[RunResult], None] | None = None) -> list[RunResult]:
+            on_result: Callable[[RunResult], None] | None = None, *, scheduler: str | None = None,
+            announce: Callable[[str], None] | None = None) -> list[RunResult]:
     """Run every (config, run) task with the backend; results in task order.
 
     `on_result` is called with each result as it finishes (completion order), e.g. to
-    write it to disk; `progress` is called once per finished task.
+    write it to disk; `progress` is called once per finished task. `scheduler` and
+    `announce` are those of `cooploc.backends.completed` (a Dask scheduler address, and
+    where to say which cluster runs the tasks).
     """
     results: dict[int, RunResult] = {}
-    for i, result in completed(_run_task, tasks, backend, workers):
+    for i, result in completed(_run_task, tasks, backend, workers, scheduler=scheduler, announce=announce):
         results[i] = result
         if on_result is not None:
             on_result(result)
@@ -391,19 +394,24 @@ class _Progress:
         if self.enabled:
             self.bar.stop()
 
+    def note(self, text: str) -> None:
+        """Print one line above the bar (nothing when the bar is not shown)."""
+        if self.enabled:
+            self.bar.console.print(text, highlight=False, markup=False, soft_wrap=True)
+
 
 class _Tasks:
     """The (config, run) tasks of every config in order, made as they are taken (a large
-    `runs` builds no list up front)."""
+    `runs` builds no list up front); the runs in `skip` are left out (of every config)."""
 
-    def __init__(self, configs: Sequence[ExperimentConfig]) -> None:
-        self.configs = tuple(configs)
+    def __init__(self, configs: Sequence[ExperimentConfig], skip: frozenset[int] = frozenset()) -> None:
+        self.configs, self.skip = tuple(configs), skip
 
     def __len__(self) -> int:
-        return sum(c.runs for c in self.configs)
+        return sum(c.runs - sum(1 for r in self.skip if 0 <= r < c.runs) for c in self.configs)
 
     def __iter__(self) -> Iterator[Task]:
-        return ((c, r) for c in self.configs for r in range(c.runs))
+        return ((c, r) for c in self.configs for r in range(c.runs) if r not in self.skip)
 
 
 def run_experiment(config: ExperimentConfig, progress: bool = False,
@@ -417,20 +425,26 @@ def run_experiment(config: ExperimentConfig, progress: bool = False,
 
     check_memory(config)
     tasks = _Tasks([config])
-    with _Progress(len(tasks), f"{config.scenario}: runs", progress) as tick:
-        results = execute(tasks, config.backend, config.workers, tick, on_result)
+    bar = _Progress(len(tasks), f"{config.scenario}: runs", progress)
+    with bar as tick:
+        results = execute(tasks, config.backend, config.workers, tick, on_result,
+                          scheduler=config.scheduler, announce=bar.note)
     return ExperimentResult(config, tuple(results))
 
 
-def iter_runs(config: ExperimentConfig, progress: bool = False) -> Iterator[RunResult]:
-    """The runs of `config` as they finish (completion order), with its backend.
+def iter_runs(config: ExperimentConfig, progress: bool = False,
+              skip: Iterable[int] = ()) -> Iterator[RunResult]:
+    """The runs of `config` as they finish (completion order), with its backend; the run
+    numbers in `skip` are not run (a resumed experiment's finished runs).
 
     Stopping the iteration (or an interrupt) cancels the runs not started yet. The
     numbers are those of `run_experiment`: sort by `RunResult.run` to get its order.
     """
-    tasks = _Tasks([config])
-    with _Progress(len(tasks), f"{config.scenario}: runs", progress) as tick:
-        for _, result in completed(_run_task, tasks, config.backend, config.workers):
+    tasks = _Tasks([config], frozenset(skip))
+    bar = _Progress(len(tasks), f"{config.scenario}: runs", progress)
+    with bar as tick:
+        for _, result in completed(_run_task, tasks, config.backend, config.workers,
+                                   scheduler=config.scheduler, announce=bar.note):
             tick()
             yield result
 
@@ -464,8 +478,10 @@ def run_sweep(
             cfg = dataclasses.replace(config, estimators=tuple(specs))
         configs.append(cfg)
     tasks = _Tasks(configs)
-    with _Progress(len(tasks), f"sweep {key}", progress) as tick:
-        results = execute(tasks, config.backend, config.workers, tick)
+    bar = _Progress(len(tasks), f"sweep {key}", progress)
+    with bar as tick:
+        results = execute(tasks, config.backend, config.workers, tick, scheduler=config.scheduler,
+                          announce=bar.note)
     out, i = [], 0
     for value, cfg in zip(values, configs, strict=True):
         out.append((value, ExperimentResult(cfg, tuple(results[i:i + cfg.runs]))))

@@ -15,7 +15,9 @@
   it finishes (`write_run`), then merges the runs into the files above (`merge_runs`);
   interrupted (Ctrl-C, an error), it still merges the finished runs, marked
   ``"complete": false``. A folder whose process was killed before merging is merged
-  by `merge_runs(folder)`.
+  by `merge_runs(folder)`; `run_to_folder(config, out, resume=True)` goes on with the
+  runs that are not in `out/runs/` yet (`finished_runs`), refusing a folder that holds
+  another experiment.
 
 Failures, divergence and strict JSON
 ------------------------------------
@@ -48,8 +50,8 @@ from cooploc.experiment import ExperimentConfig, ExperimentResult, Failure, RunR
 from cooploc.metrics import FEATURE, KIND_NAMES, VEHICLE, ErrorTable, per_entity_rmse, rmse, total_rmse
 from cooploc.plots import run_figures, run_report
 
-__all__ = ["errors_frame", "merge_runs", "read_runs", "run_to_folder", "summarize", "write_results",
-           "write_run"]
+__all__ = ["errors_frame", "finished_runs", "merge_runs", "read_runs", "run_to_folder", "summarize",
+           "write_results", "write_run"]
 
 RUNS_FOLDER = "runs"  # the per-run parts of `run_to_folder`, inside the results folder
 
@@ -70,14 +72,53 @@ def _pooled(errors: np.ndarray, diverged: np.ndarray) -> float | None:
     return None if diverged.any() else _finite_or_none(rmse(errors))
 
 
+def _groups(*keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows grouped by equal `keys` in one sort: (order, starts, ends), where group g is the
+    rows ``order[starts[g]:ends[g]]``, groups sorted by the keys (the last key first) and
+    rows in their original order within a group (a stable sort). Linear after the sort:
+    what `summarize` computes per run never masks every row once per run."""
+    order = np.lexsort(keys[::-1]) if keys[0].size else np.zeros(0, np.int64)
+    if order.size == 0:
+        return order, np.zeros(0, np.int64), np.zeros(0, np.int64)
+    ordered = [k[order] for k in keys]
+    new = np.zeros(order.size, dtype=bool)
+    new[0] = True
+    for k in ordered:
+        new[1:] |= k[1:] != k[:-1]
+    starts = np.flatnonzero(new)
+    return order, starts, np.append(starts[1:], order.size)
+
+
+def _per_run_rmse(run: np.ndarray, table: ErrorTable, diverged: np.ndarray, vehicles: np.ndarray,
+                  runs: list[int]) -> dict[str, list[float | None]]:
+    """Per vehicle id, the pooled RMSE of each of `runs` (null where the vehicle has no rows in
+    a run, or diverged there); the rows of each (id, run) in their table order, so every
+    number is the one `_pooled` gives on that run's rows."""
+    rows = np.flatnonzero(vehicles)
+    ids, runs_of = table.id[rows], run[rows]
+    order, starts, ends = _groups(ids, runs_of)
+    position = {r: i for i, r in enumerate(runs)}
+    out: dict[str, list[float | None]] = {}
+    for start, end in zip(starts, ends, strict=True):
+        group = rows[order[start:end]]
+        per_run = out.setdefault(str(int(ids[order[start]])), [None] * len(runs))
+        at = position.get(int(runs_of[order[start]]))
+        if at is not None:
+            per_run[at] = _pooled(table.err_pos[group], diverged[group])
+    return out
+
+
 def _diverged_runs(run: np.ndarray, table: ErrorTable, diverged: np.ndarray) -> list[dict[str, Any]]:
     """Per diverged run: its first diverged step and the vehicle and feature ids that diverged."""
+    rows = np.flatnonzero(diverged)
+    order, starts, ends = _groups(run[rows])
     out = []
-    for r in np.unique(run[diverged]):
-        rows = diverged & (run == r)
-        out.append({"run": int(r), "step": int(table.step[rows].min()),
-                    "vehicles": sorted({int(i) for i in table.id[rows & (table.kind == VEHICLE)]}),
-                    "features": sorted({int(i) for i in table.id[rows & (table.kind == FEATURE)]})})
+    for start, end in zip(starts, ends, strict=True):
+        group = rows[order[start:end]]
+        kind, ids = table.kind[group], table.id[group]
+        out.append({"run": int(run[group[0]]), "step": int(table.step[group].min()),
+                    "vehicles": sorted({int(i) for i in ids[kind == VEHICLE]}),
+                    "features": sorted({int(i) for i in ids[kind == FEATURE]})})
     return out
 
 
@@ -120,14 +161,7 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
         vehicles = table.kind == VEHICLE
         features = table.kind == FEATURE
         diverged = _diverged(table.err_pos)
-        per_run: dict[str, list[float | None]] = {}
-        vehicle_ids = np.unique(table.id[vehicles])
-        for vid in vehicle_ids:
-            rows = vehicles & (table.id == vid)
-            per_run[str(int(vid))] = [
-                _pooled(table.err_pos[rows & (run == r.run)], diverged[rows & (run == r.run)])
-                for r in result.runs
-            ]
+        per_run = _per_run_rmse(run, table, diverged, vehicles, [r.run for r in result.runs])
         done = [r for r in result.runs if spec.name in r.errors]
         seconds = sum(r.step_seconds[spec.name] for r in done)
         steps = sum(r.n_steps[spec.name] for r in done)
@@ -257,8 +291,14 @@ def _atomic(path: Path, write: Callable[[Path], None]) -> None:
 
 
 def run_to_folder(config: ExperimentConfig, out: str | os.PathLike[str], *,
-                  progress: bool = False) -> Path:
+                  progress: bool = False, resume: bool = False) -> Path:
     """Run the experiment, writing each run to `out/runs/` as it finishes, then merge.
+
+    With `resume`, the runs already in `out/runs/` (an interrupted or killed experiment
+    of the same configuration) are kept and not run again, and a folder whose merged
+    summary says it is complete is left as it is; a folder of another experiment is a
+    `ConfigError` naming what differs (`finished_runs`). Without `resume`, what an
+    earlier experiment left in the folder is removed first.
 
     An experiment that surely does not fit in memory is refused first
     (`cooploc.budget.check_memory`); then config.toml is written. If the experiment is
@@ -275,16 +315,21 @@ def run_to_folder(config: ExperimentConfig, out: str | os.PathLike[str], *,
     check_memory(config)  # before anything is written: a refused experiment leaves no folder
     folder = Path(out)
     parts = folder / RUNS_FOLDER
+    done = finished_runs(folder, config) if resume else frozenset()
+    if resume and (folder / "config.toml").is_file() and _merged_complete(folder):
+        return folder
     parts.mkdir(parents=True, exist_ok=True)
     # what an earlier experiment left here would be taken for this one's until the merge
     from cooploc.view.estimates import ESTIMATES_FILE
 
-    for stale in [*parts.glob("run-*"), folder / "summary.json", folder / ESTIMATES_FILE]:
-        stale.unlink(missing_ok=True)
+    stale = [folder / "summary.json"] if resume else [*parts.glob("run-*"), folder / "summary.json",
+                                                      folder / ESTIMATES_FILE]
+    for path in stale:
+        path.unlink(missing_ok=True)
     _write_config(config, folder)
-    finished = 0
+    finished = len(done)
     try:
-        with contextlib.closing(iter_runs(config, progress)) as runs:
+        with contextlib.closing(iter_runs(config, progress, skip=done)) as runs:
             for run in runs:
                 write_run(run, config, folder)
                 finished += 1
@@ -300,6 +345,41 @@ def run_to_folder(config: ExperimentConfig, out: str | os.PathLike[str], *,
         merge_runs(folder, config, stopped_by=type(exc).__name__)
         raise
     return merge_runs(folder, config)
+
+
+def finished_runs(folder: str | os.PathLike[str], config: ExperimentConfig) -> frozenset[int]:
+    """The runs of `config` already written to `folder/runs/` (for `resume`): a run counts
+    once its JSON part is there (`write_run` writes it last). A folder without config.toml
+    has none; one whose config.toml is another experiment is a `ConfigError` naming the
+    first setting that differs."""
+    folder = Path(folder)
+    if not (folder / "config.toml").is_file():
+        return frozenset()
+    try:
+        previous = ExperimentConfig.read(folder / "config.toml")
+    except ConfigError as exc:
+        raise ConfigError(f"--resume: {folder}/config.toml cannot be read ({exc}); give another --out") \
+            from None
+    if not previous.same_experiment(config):
+        diff = previous.differences(config)
+        what = (f"{diff[0][0]} is {diff[0][1]!r} there and {diff[0][2]!r} here" if diff
+                else "the estimators are listed in another order")
+        raise ConfigError(f"--resume: {folder} holds another experiment ({what}); resume it with "
+                          f"`cooploc run --config {folder}/config.toml --resume`, or give another --out")
+    runs = set()
+    for path in (folder / RUNS_FOLDER).glob("run-*.json"):
+        with contextlib.suppress(ValueError):
+            if path.with_suffix(".parquet").is_file():
+                runs.add(int(path.stem.removeprefix("run-")))
+    return frozenset(r for r in runs if 0 <= r < config.runs)
+
+
+def _merged_complete(folder: Path) -> bool:
+    """Whether `folder` holds the merged summary of a complete experiment."""
+    try:
+        return json.loads((folder / "summary.json").read_text()).get("complete") is True
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def write_run(run: RunResult, config: ExperimentConfig, folder: str | os.PathLike[str]) -> None:

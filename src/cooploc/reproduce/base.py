@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cooploc.backends import one_thread
 from cooploc.experiment import (
     ExperimentConfig,
     ExperimentResult,
@@ -60,7 +61,7 @@ class ReproduceOptions:
     out : output folder.
     runs : Monte Carlo runs per point (None: the experiment's default).
     seed : the one seed of every number.
-    backend, workers : as for `cooploc run`.
+    backend, workers, scheduler : as for `cooploc run`.
     quick : a small version (few runs, short trajectories) to check the pipeline.
     progress : show progress bars.
     """
@@ -72,6 +73,7 @@ class ReproduceOptions:
     workers: int | None = None
     quick: bool = False
     progress: bool = False
+    scheduler: str | None = None
 
 
 def registered(names: Sequence[str]) -> list[str]:
@@ -119,7 +121,7 @@ class ReproduceContext:
         return ExperimentConfig.build(scenario, names, scenario_overrides=scenario_overrides,
                                       estimator_overrides=overrides, runs=runs or self.runs,
                                       seed=self.seed, backend=self.options.backend,
-                                      workers=self.options.workers)
+                                      workers=self.options.workers, scheduler=self.options.scheduler)
 
     def run(self, config: ExperimentConfig) -> ExperimentResult:
         """Every run of `config` (progress bar if asked); a paper's figures need every
@@ -151,7 +153,8 @@ class ReproduceContext:
         results: list[Any] = []
         try:
             if parallel:
-                with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
+                pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=one_thread)
+                with pool:
                     for result in pool.map(fn, tasks):
                         results.append(result)
                         if progress is not None:

@@ -1,0 +1,152 @@
+"""Monte Carlo on an existing Dask cluster (issue 17 item 3): a real `dask scheduler` and two
+`dask worker` processes on 127.0.0.1 (random ports, nothing listening elsewhere) take the
+runs of `cooploc run --backend dask --scheduler ADDRESS` (or of ``DASK_SCHEDULER_ADDRESS``);
+the results are byte for byte those of the serial backend, and the workers run one thread."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+import cooploc.backends
+from cooploc.backends import completed, scheduler_address
+from cooploc.cli import app
+from cooploc.errors import ConfigError
+from test_resume import config, interrupted
+from thread_probe import thread_report
+
+distributed = pytest.importorskip("distributed", reason="dask extra not installed")
+pytestmark = pytest.mark.slow  # starting a cluster takes a few seconds
+
+TESTS = Path(__file__).parent
+SRC = Path(cooploc.backends.__file__).parents[1]
+LOCAL = "127.0.0.1"
+STARTUP_SECONDS = 90
+
+
+def _dask_command() -> list[str]:
+    # the `dask` script of this interpreter's environment (not another one on PATH)
+    script = Path(sys.executable).with_name("dask")
+    return [str(script)] if script.exists() else [shutil.which("dask") or "dask"]
+
+
+def _stop(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """The address of a scheduler with two single-thread workers, all on 127.0.0.1; every
+    process is stopped at the end, whatever happened."""
+    folder = tmp_path_factory.mktemp("dask")
+    file = folder / "scheduler.json"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(SRC), str(TESTS)]),
+           "DASK_DISTRIBUTED__WORKER__DAEMON": "False"}
+    env.pop("DASK_SCHEDULER_ADDRESS", None)
+    common = ["--dashboard-address", f"{LOCAL}:0"]  # the web servers on this machine only, free ports
+    processes: list[subprocess.Popen] = []
+    log = (folder / "cluster.log").open("w")
+    try:
+        processes.append(subprocess.Popen(
+            [*_dask_command(), "scheduler", "--host", LOCAL, "--port", "0", "--scheduler-file", str(file),
+             *common], env=env, stdout=log, stderr=subprocess.STDOUT, cwd=folder))
+        deadline = time.monotonic() + STARTUP_SECONDS
+        while not file.exists():
+            assert processes[0].poll() is None, (folder / "cluster.log").read_text()
+            assert time.monotonic() < deadline, "the scheduler did not start"
+            time.sleep(0.2)
+        for i in range(2):
+            processes.append(subprocess.Popen(
+                [*_dask_command(), "worker", "--scheduler-file", str(file), "--host", LOCAL,
+                 "--nthreads", "1", "--nworkers", "1", "--no-dashboard", *common,
+                 "--local-directory", str(folder / f"worker-{i}")],
+                env=env, stdout=log, stderr=subprocess.STDOUT, cwd=folder))
+        address = json.loads(file.read_text())["address"]
+        with distributed.Client(address, timeout="30s") as client:
+            client.wait_for_workers(2, timeout=STARTUP_SECONDS)
+        yield address
+    finally:
+        for process in reversed(processes):
+            _stop(process)
+        log.close()
+
+
+def _run(*args: str, env: dict[str, str] | None = None):
+    return CliRunner().invoke(app, ["run", "froehle2018", "-e", "gnss-kf", "-e", "oracle-kf", "--runs", "4",
+                                    "--seed", "3", "--set", "n_steps=12", *args], env=env)
+
+
+def _numbers(folder: Path) -> dict:
+    summary = json.loads((folder / "summary.json").read_text())
+    for est in summary["estimators"].values():
+        est.pop("steps_per_second")
+    return summary
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("serial")
+    result = _run("--backend", "serial", "--no-progress", "--out", str(out))
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_runs_on_the_scheduler_equal_serial(cluster, serial, tmp_path):
+    out = tmp_path / "dask"
+    result = _run("--backend", "dask", "--scheduler", cluster, "--out", str(out))
+    assert result.exit_code == 0, result.output
+    assert f"Dask scheduler {cluster}: 2 worker threads; dashboard: http://{LOCAL}:" in result.output
+    assert (out / "errors.parquet").read_bytes() == (serial / "errors.parquet").read_bytes()
+    assert _numbers(out) == _numbers(serial)
+    with distributed.Client(cluster) as client:  # the runs went to the cluster's workers
+        prefixes = client.run_on_scheduler(lambda dask_scheduler: list(dask_scheduler.task_prefixes))
+    assert "one_thread_call" in prefixes  # dask drops the leading underscore of the task name
+
+
+def test_environment_variable_names_the_scheduler(cluster, serial, tmp_path, monkeypatch):
+    monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", cluster)
+    assert scheduler_address() == cluster
+    out = tmp_path / "env"
+    result = _run("--backend", "dask", "--out", str(out), env={"DASK_SCHEDULER_ADDRESS": cluster})
+    assert result.exit_code == 0, result.output
+    assert f"Dask scheduler {cluster}" in result.output  # not a local cluster
+    assert (out / "errors.parquet").read_bytes() == (serial / "errors.parquet").read_bytes()
+
+
+def test_dask_workers_run_one_thread(cluster):
+    lines: list[str] = []
+    reports = [r for _, r in completed(thread_report, range(4), "dask", scheduler=cluster,
+                                       announce=lines.append)]
+    assert len(reports) == 4 and lines and cluster in lines[0]
+    for report in reports:
+        assert report["pools"] and all(n == 1 for _, n in report["pools"]), report
+        assert report["numba"] == 1, report
+
+
+def test_resume_on_the_scheduler(cluster, serial, tmp_path):
+    folder = interrupted(tmp_path / "resumed", config(), [0, 3])
+    result = _run("--backend", "dask", "--scheduler", cluster, "--no-progress", "--resume", "--out",
+                  str(folder))
+    assert result.exit_code == 0, result.output
+    assert (folder / "errors.parquet").read_bytes() == (serial / "errors.parquet").read_bytes()
+    assert _numbers(folder) == _numbers(serial)
+
+
+def test_an_unreachable_scheduler_is_one_line(tmp_path, monkeypatch):
+    monkeypatch.setattr(cooploc.backends, "CONNECT_TIMEOUT", "1s")
+    with pytest.raises(ConfigError, match=r"cannot reach a Dask scheduler at 'tcp://127.0.0.1:9'"):
+        list(completed(thread_report, range(2), "dask", scheduler="tcp://127.0.0.1:9"))
