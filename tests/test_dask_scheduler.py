@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -20,11 +21,11 @@ import cooploc.backends
 from cooploc.backends import completed, scheduler_address
 from cooploc.cli import app
 from cooploc.errors import ConfigError
+from cooploc.experiment import ExperimentConfig
 from test_resume import config, interrupted
 from thread_probe import thread_report
 
 distributed = pytest.importorskip("distributed", reason="dask extra not installed")
-pytestmark = pytest.mark.slow  # starting a cluster takes a few seconds
 
 TESTS = Path(__file__).parent
 SRC = Path(cooploc.backends.__file__).parents[1]
@@ -49,7 +50,7 @@ def _stop(process: subprocess.Popen) -> None:
 
 
 @pytest.fixture(scope="module")
-def cluster(tmp_path_factory):
+def cluster(tmp_path_factory):  # the tests that use it are slow: starting a cluster takes seconds
     """The address of a scheduler with two single-thread workers, all on 127.0.0.1; every
     process is stopped at the end, whatever happened."""
     folder = tmp_path_factory.mktemp("dask")
@@ -105,6 +106,7 @@ def serial(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_runs_on_the_scheduler_equal_serial(cluster, serial, tmp_path):
     out = tmp_path / "dask"
     result = _run("--backend", "dask", "--scheduler", cluster, "--out", str(out))
@@ -117,6 +119,7 @@ def test_runs_on_the_scheduler_equal_serial(cluster, serial, tmp_path):
     assert "one_thread_call" in prefixes  # dask drops the leading underscore of the task name
 
 
+@pytest.mark.slow
 def test_environment_variable_names_the_scheduler(cluster, serial, tmp_path, monkeypatch):
     monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", cluster)
     assert scheduler_address() == cluster
@@ -127,6 +130,7 @@ def test_environment_variable_names_the_scheduler(cluster, serial, tmp_path, mon
     assert (out / "errors.parquet").read_bytes() == (serial / "errors.parquet").read_bytes()
 
 
+@pytest.mark.slow
 def test_dask_workers_run_one_thread(cluster):
     lines: list[str] = []
     reports = [r for _, r in completed(thread_report, range(4), "dask", scheduler=cluster,
@@ -137,6 +141,7 @@ def test_dask_workers_run_one_thread(cluster):
         assert report["numba"] == 1, report
 
 
+@pytest.mark.slow
 def test_resume_on_the_scheduler(cluster, serial, tmp_path):
     folder = interrupted(tmp_path / "resumed", config(), [0, 3])
     result = _run("--backend", "dask", "--scheduler", cluster, "--no-progress", "--resume", "--out",
@@ -150,3 +155,37 @@ def test_an_unreachable_scheduler_is_one_line(tmp_path, monkeypatch):
     monkeypatch.setattr(cooploc.backends, "CONNECT_TIMEOUT", "1s")
     with pytest.raises(ConfigError, match=r"cannot reach a Dask scheduler at 'tcp://127.0.0.1:9'"):
         list(completed(thread_report, range(2), "dask", scheduler="tcp://127.0.0.1:9"))
+    # on the command line: --scheduler alone means --backend dask; one line, no folder left
+    out = tmp_path / "out"
+    result = _run("--scheduler", "tcp://127.0.0.1:9", "--no-progress", "--out", str(out))
+    assert result.exit_code == 2, result.output
+    assert result.output.strip().splitlines() == [
+        "error: scheduler: cannot reach a Dask scheduler at 'tcp://127.0.0.1:9' " + result.output.split(
+            "'tcp://127.0.0.1:9' ", 1)[1].strip()]
+    assert not out.exists()
+
+
+def _config(**kwargs) -> ExperimentConfig:
+    return ExperimentConfig.build("froehle2018", ["gnss-kf"], **kwargs)
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"backend": "processes", "scheduler": "tcp://h:1"}, "a scheduler address applies to the dask backend, "
+                                                          "not processes; got scheduler = 'tcp://h:1'"),
+    ({"backend": "dask", "scheduler": "tcp://h:1", "workers": 2},
+     "the cluster at tcp://h:1 has its own workers"),
+    ({"backend": "dask", "scheduler": ""}, "scheduler must be the address of a Dask scheduler"),
+    ({"backend": "dask", "scheduler": "tcp://h :1"}, "scheduler must be the address of a Dask scheduler"),
+])
+def test_scheduler_is_checked(kwargs, message):
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        _config(**kwargs)
+
+
+def test_scheduler_is_kept_in_config_toml_but_not_part_of_the_experiment():
+    config = _config(backend="dask", scheduler="tcp://h:1")
+    assert ExperimentConfig.from_dict(config.to_dict()) == config
+    assert config.same_experiment(_config(backend="serial"))
+    assert config.with_overrides(backend="processes").scheduler is None
+    assert config.with_overrides(runs=3).scheduler == "tcp://h:1"
+    assert _config(backend="dask", workers=2).with_overrides(scheduler="tcp://g:2").workers is None

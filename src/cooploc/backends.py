@@ -162,8 +162,8 @@ def completed(fn: Callable[[T], R], tasks: Iterable[T], backend: str = "processe
         if len(tasks) == 0:  # e.g. a resumed experiment with every run done: no cluster to reach
             return
         n_workers = min(n_workers, len(tasks))
-        if len(tasks) == 1 and backend != "dask":
-            backend = "serial"  # one task: no pool to start (a named cluster still gets it)
+        if len(tasks) == 1 and (backend == "processes" or scheduler_address(scheduler) is None):
+            backend = "serial"  # one task: no pool or local cluster to start (a named cluster gets it)
     numbered = enumerate(tasks)
     if backend == "serial" or (backend == "processes" and n_workers == 1):
         for i, task in numbered:
@@ -234,8 +234,10 @@ def _dask_results(fn: Callable[[T], R], numbered: Iterator[tuple[int, T]], worke
     threads = _Threads(client, minimum=workers if cluster is not None else 1)
     try:
         if announce is not None:
-            link = client.dashboard_link if _has_dashboard(client) else None
-            announce(f"{where}: {threads.now()} worker threads; dashboard: {link or 'none'}")
+            link = client.dashboard_link if _has_dashboard(client) else "none"
+            if cluster is not None and not _module_exists("bokeh"):  # the page would only say so
+                link = "none (it needs bokeh: pip install bokeh)"
+            announce(f"{where}: {threads.now()} worker threads; dashboard: {link}")
 
         def top_up() -> None:
             # as many tasks ahead as the cluster has threads (workers may join or leave)
