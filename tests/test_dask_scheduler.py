@@ -189,3 +189,14 @@ def test_scheduler_is_kept_in_config_toml_but_not_part_of_the_experiment():
     assert config.with_overrides(backend="processes").scheduler is None
     assert config.with_overrides(runs=3).scheduler == "tcp://h:1"
     assert _config(backend="dask", workers=2).with_overrides(scheduler="tcp://g:2").workers is None
+
+
+@pytest.mark.slow
+def test_a_worker_without_the_code_is_one_line(cluster, tmp_path, monkeypatch):
+    (tmp_path / "only_here.py").write_text("def task(x):\n    return x\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import only_here  # importable here, not on the workers
+
+    # the scheduler unpickles the task graph: there it fails first
+    with pytest.raises(ConfigError, match=r"Dask scheduler .* cannot unpickle the runs .*: install cooploc"):
+        list(completed(only_here.task, range(2), "dask", scheduler=cluster))

@@ -237,7 +237,8 @@ def _dask_results(fn: Callable[[T], R], numbered: Iterator[tuple[int, T]], worke
             link = client.dashboard_link if _has_dashboard(client) else "none"
             if cluster is not None and not _module_exists("bokeh"):  # the page would only say so
                 link = "none (it needs bokeh: pip install bokeh)"
-            announce(f"{where}: {threads.now()} worker threads; dashboard: {link}")
+            threads.now()
+            announce(f"{where}: {threads.found} worker threads; dashboard: {link}")
 
         def top_up() -> None:
             # as many tasks ahead as the cluster has threads (workers may join or leave)
@@ -249,7 +250,11 @@ def _dask_results(fn: Callable[[T], R], numbered: Iterator[tuple[int, T]], worke
 
         top_up()
         for future in queue:  # futures added while iterating are waited for too
-            result = future.result()
+            try:
+                result = future.result()
+            except (ModuleNotFoundError, RuntimeError) as exc:
+                _raise_if_not_installed(exc, where)
+                raise
             i, _ = pending.pop(future.key)
             future.release()  # its result is ours now: the cluster may forget it
             top_up()
@@ -264,15 +269,28 @@ def _dask_results(fn: Callable[[T], R], numbered: Iterator[tuple[int, T]], worke
             cluster.close()
 
 
+def _raise_if_not_installed(exc: BaseException, where: str) -> None:
+    """A `ConfigError` for a task that the scheduler or a worker could not unpickle (the code
+    is not installed there); other exceptions are left alone."""
+    if isinstance(exc, ModuleNotFoundError):
+        what = f"a Dask worker of {where} cannot import {exc.name!r}"
+    elif "deserializ" in str(exc):  # the scheduler unpickles the task graph too
+        what = f"{where} cannot unpickle the runs ({str(exc).splitlines()[0].strip()})"
+    else:
+        return
+    raise ConfigError(f"{what}: install cooploc, with the extras and plug-ins the experiment uses, "
+                      f"on the scheduler and on every worker") from exc
+
+
 class _Threads:
-    """The worker threads of a client's cluster (at least `minimum`), asked of the scheduler
-    at most once every `REFRESH_SECONDS` (each ask is a round trip)."""
+    """The worker threads of a client's cluster: `found` when last asked, `now()` at least
+    `minimum`; the scheduler is asked at most once every `REFRESH_SECONDS` (a round trip)."""
 
     REFRESH_SECONDS = 2.0
 
     def __init__(self, client: Any, minimum: int) -> None:
         self.client, self.minimum = client, minimum
-        self.count, self.asked = minimum, -float("inf")
+        self.count, self.found, self.asked = minimum, 0, -float("inf")
 
     def now(self) -> int:
         import time
@@ -282,8 +300,8 @@ class _Threads:
                 info = self.client.scheduler_info(n_workers=-1)  # every worker, not the first few
             except TypeError:  # distributed before 2025 lists every worker anyway
                 info = self.client.scheduler_info()
-            found = sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values())
-            self.count, self.asked = max(found, self.minimum), time.monotonic()
+            self.found = sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values())
+            self.count, self.asked = max(self.found, self.minimum), time.monotonic()
         return self.count
 
 

@@ -177,7 +177,8 @@ def run(
                          "others run (the folder must hold the same experiment).")] = False,
     config: Annotated[Path | None, typer.Option(
         help="Rerun the config.toml of a results folder, into that folder; -e, --runs, --seed, --set, "
-             "--est-set, --backend and --workers given with it override the file's values.")] = None,
+             "--est-set, --backend, --workers and --scheduler given with it override the file's "
+             "values.")] = None,
     overwrite: Annotated[bool, typer.Option(
         help="Write over a results folder of another configuration (the same configuration "
              "may always be rerun into its own folder).")] = False,
