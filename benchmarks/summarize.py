@@ -7,11 +7,12 @@ The runs are fabricated: one real run of gnss-kf on froehle2018 (`--steps` steps
 its position errors scaled by a random factor per row, numbered 0 … R − 1 (what `summarize`
 costs depends on the rows, not on how they were made). For each R: the seconds of
 `summarize`, its peak traced memory (a pass of its own), the seconds of `merge_runs` over R
-run parts written beforehand (reading the parts, summary, errors.parquet, figures), and, as
-the reference measured in the same process, the per-vehicle × per-run masking that
-`summarize` did before (one boolean mask over every row per vehicle and run; quadratic in
-runs). The growth exponent is the slope of a least-squares line through log(seconds) against
-log(R): 1 is linear.
+run parts written beforehand (reading the parts, summary, errors.parquet, figures), the
+seconds of the per-vehicle per-run RMSE as `summarize` computes them (rows grouped by
+vehicle and run in one sort) and, as the reference measured in the same process, the same
+numbers by the masking that `summarize` did before (one boolean mask over every row per
+vehicle and run; quadratic in runs). The growth exponent is the slope of a least-squares
+line through log(seconds) against log(R): 1 is linear.
 """
 
 from __future__ import annotations
@@ -60,6 +61,15 @@ def masked_per_run(result: ExperimentResult, name: str) -> dict[str, list[float]
         rows = vehicles & (table.id == vid)
         out[str(int(vid))] = [rmse(table.err_pos[rows & (run == r.run)]) for r in result.runs]
     return out
+
+
+def grouped_per_run(result: ExperimentResult, name: str) -> dict[str, list[float | None]]:
+    """What `summarize` does now for the same numbers: rows grouped by (vehicle, run) once."""
+    from cooploc.results import _diverged, _per_run_rmse
+
+    run, table = result.errors(name)
+    return _per_run_rmse(run, table, _diverged(table.err_pos), table.kind == VEHICLE,
+                         [r.run for r in result.runs])
 
 
 def _seconds(fn, repeats: int) -> float:
@@ -111,6 +121,8 @@ def main(argv: list[str] | None = None) -> int:
         row = {"runs": runs, "rows": sum(len(r.errors["gnss-kf"]) for r in result.runs),
                "summarize_seconds": _seconds(lambda: summarize(result), repeats),  # noqa: B023
                "summarize_peak_bytes": peak_memory(lambda: summarize(result))}  # noqa: B023
+        row["grouped_per_run_seconds"] = _seconds(lambda: grouped_per_run(result, "gnss-kf"),  # noqa: B023
+                                                  repeats)
         if runs <= args.reference_up_to:
             row["masked_per_run_seconds"] = _seconds(lambda: masked_per_run(result, "gnss-kf"),  # noqa: B023
                                                      repeats)
@@ -118,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
         reference = row.get("masked_per_run_seconds")
         print(f"{runs:6d} runs: summarize {row['summarize_seconds']:.3f} s, "
-              f"merge {row['merge_seconds']:.2f} s"
+              f"merge {row['merge_seconds']:.2f} s, per-run RMSE {row['grouped_per_run_seconds']:.3f} s"
               + (f", masking reference {reference:.3f} s" if reference is not None else ""))
     results = {**environment(), "steps": steps, "repeats": repeats, "sizes": rows}
     if len(rows) > 1:
@@ -126,6 +138,8 @@ def main(argv: list[str] | None = None) -> int:
         results["exponent"] = {
             "summarize": _exponent([r["runs"] for r in rows], [r["summarize_seconds"] for r in rows]),
             "merge": _exponent([r["runs"] for r in rows], [r["merge_seconds"] for r in rows]),
+            "grouped_per_run": _exponent([r["runs"] for r in rows], [r["grouped_per_run_seconds"]
+                                                                     for r in rows]),
             "masked_per_run_reference": _exponent([r["runs"] for r in ref], [r["masked_per_run_seconds"]
                                                                              for r in ref])
             if len(ref) > 1 else None,

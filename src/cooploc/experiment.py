@@ -42,7 +42,8 @@ numbered by `RunResult.run`); `execute`, `run_experiment` and `run_sweep` put th
 in task order, and take an optional `on_result` callback. The backends
 (`cooploc.backends`) take the (config, run) tasks lazily, a few per worker ahead, so a
 large `runs` builds no big list up front. `cooploc.results.run_to_folder` writes each
-run to disk as it finishes.
+run to disk as it finishes, and a resumed experiment passes the runs it has already to
+`iter_runs(..., skip=...)`.
 
 The configuration (`ExperimentConfig`, `EstimatorSpec`) is `cooploc.config`, re-exported
 here; the summary of results and the results folder are `cooploc.results`.

@@ -92,19 +92,22 @@ def _groups(*keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _per_run_rmse(run: np.ndarray, table: ErrorTable, diverged: np.ndarray, vehicles: np.ndarray,
                   runs: list[int]) -> dict[str, list[float | None]]:
     """Per vehicle id, the pooled RMSE of each of `runs` (null where the vehicle has no rows in
-    a run, or diverged there); the rows of each (id, run) in their table order, so every
-    number is the one `_pooled` gives on that run's rows."""
+    a run, or diverged there). The rows of each (id, run) keep their table order and their
+    squares are summed by the same pairwise reduction as `metrics.rmse`, so every number is,
+    bit for bit, the one `_pooled` gives on that run's rows."""
     rows = np.flatnonzero(vehicles)
     ids, runs_of = table.id[rows], run[rows]
     order, starts, ends = _groups(ids, runs_of)
+    with np.errstate(over="ignore"):  # diverged rows overflow; their groups are null anyway
+        squares = np.square(table.err_pos[rows[order]])
+    bad = np.logical_or.reduceat(diverged[rows[order]], starts) if starts.size else np.zeros(0, bool)
     position = {r: i for i, r in enumerate(runs)}
     out: dict[str, list[float | None]] = {}
-    for start, end in zip(starts, ends, strict=True):
-        group = rows[order[start:end]]
+    for g, (start, end) in enumerate(zip(starts, ends, strict=True)):
         per_run = out.setdefault(str(int(ids[order[start]])), [None] * len(runs))
         at = position.get(int(runs_of[order[start]]))
-        if at is not None:
-            per_run[at] = _pooled(table.err_pos[group], diverged[group])
+        if at is not None and not bad[g]:
+            per_run[at] = _finite_or_none(float(np.sqrt(np.add.reduce(squares[start:end]) / (end - start))))
     return out
 
 
