@@ -109,11 +109,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--reference-up-to", type=int, default=2000,
                         help="largest R at which the quadratic reference is timed")
+    parser.add_argument("--skip-merge", action="store_true",
+                        help="time summarize alone (the merge writes and reads R files per size)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes, to check the script")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "summarize.json")
     args = parser.parse_args(argv)
     sizes, steps, repeats = ([20, 40], 10, 1) if args.quick else (args.runs, args.steps, args.repeats)
-    _merge(study(2, steps), merge_runs, write_run, _write_config)  # imports (matplotlib…) not timed
+    if not args.skip_merge:
+        _merge(study(2, steps), merge_runs, write_run, _write_config)  # imports (matplotlib…) not timed
     rows = []
     for runs in sizes:
         config = study(runs, steps)
@@ -126,18 +129,21 @@ def main(argv: list[str] | None = None) -> int:
         if runs <= args.reference_up_to:
             row["masked_per_run_seconds"] = _seconds(lambda: masked_per_run(result, "gnss-kf"),  # noqa: B023
                                                      repeats)
-        row["merge_seconds"] = _merge(config, merge_runs, write_run, _write_config, result)
+        if not args.skip_merge:
+            row["merge_seconds"] = _merge(config, merge_runs, write_run, _write_config, result)
         rows.append(row)
         reference = row.get("masked_per_run_seconds")
+        merge = f"merge {row['merge_seconds']:.2f} s, " if "merge_seconds" in row else ""
         print(f"{runs:6d} runs: summarize {row['summarize_seconds']:.3f} s, "
-              f"merge {row['merge_seconds']:.2f} s, per-run RMSE {row['grouped_per_run_seconds']:.3f} s"
+              f"{merge}per-run RMSE {row['grouped_per_run_seconds']:.3f} s"
               + (f", masking reference {reference:.3f} s" if reference is not None else ""))
     results = {**environment(), "steps": steps, "repeats": repeats, "sizes": rows}
     if len(rows) > 1:
         ref = [r for r in rows if "masked_per_run_seconds" in r]
         results["exponent"] = {
             "summarize": _exponent([r["runs"] for r in rows], [r["summarize_seconds"] for r in rows]),
-            "merge": _exponent([r["runs"] for r in rows], [r["merge_seconds"] for r in rows]),
+            "merge": None if args.skip_merge else _exponent([r["runs"] for r in rows],
+                                                              [r["merge_seconds"] for r in rows]),
             "grouped_per_run": _exponent([r["runs"] for r in rows], [r["grouped_per_run_seconds"]
                                                                      for r in rows]),
             "masked_per_run_reference": _exponent([r["runs"] for r in ref], [r["masked_per_run_seconds"]
