@@ -200,3 +200,16 @@ def test_a_worker_without_the_code_is_one_line(cluster, tmp_path, monkeypatch):
     # the scheduler unpickles the task graph: there it fails first
     with pytest.raises(ConfigError, match=r"Dask scheduler .* cannot unpickle the runs .*: install cooploc"):
         list(completed(only_here.task, range(2), "dask", scheduler=cluster))
+
+
+def test_scheduler_address_order(monkeypatch):
+    import dask
+
+    monkeypatch.delenv("DASK_SCHEDULER_ADDRESS", raising=False)
+    with dask.config.set({"scheduler-address": None}):
+        assert scheduler_address() is None
+    with dask.config.set({"scheduler-address": "tcp://from-config:1"}):
+        assert scheduler_address() == "tcp://from-config:1"
+        monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "tcp://from-env:2")
+        assert scheduler_address() == "tcp://from-env:2"
+        assert scheduler_address("tcp://given:3") == "tcp://given:3"
