@@ -214,6 +214,8 @@ class ComponentFilter:
         self.feature_ids: IntArray = np.zeros(0, dtype=np.int64)
         self.last_seen: IntArray = np.zeros(0, dtype=np.int64)
         self._lookup: tuple[IntArray, IntArray, IntArray] | None = None
+        self._present: IntArray | None = None   # the vehicles of the previous step
+        self._Q: list[FloatArray | None] = [None, None]   # Q of a model whose noise is constant
 
     # -- one step -------------------------------------------------------------------
 
@@ -241,8 +243,10 @@ class ComponentFilter:
 
     def _forget(self, present: IntArray, k: int) -> None:
         """Marginalise out the vehicles that left and the features unseen for too long."""
-        self._lookup = None
         fresh = k - self.last_seen <= self.params.feature_timeout
+        if fresh.all() and np.array_equal(present, self._present):
+            return  # the usual step: the same vehicles, no feature timed out
+        self._lookup, self._present = None, present
         stale = self.feature_ids[~fresh]
         self.feature_ids, self.last_seen = self.feature_ids[fresh], self.last_seen[fresh]
         stay = np.isin(self.alone_ids, present)
@@ -259,21 +263,28 @@ class ComponentFilter:
 
     def _predict(self) -> None:
         """θ⁻ = F θ, P⁻ = F P Fᵀ + Q, block by block (F and Q are block diagonal)."""
-        dt = self.setup.dt
         if len(self.alone):
-            model = self.motion[VEHICLE]
-            self.alone = kf_predict(self.alone, self.F[VEHICLE], model.noise_covariance(dt, self.alone.mean))
+            self.alone = kf_predict(self.alone, self.F[VEHICLE], self._noise(VEHICLE, self.alone.mean))
         for c in self.components:
             self._predict_component(c)
 
+    def _noise(self, kind: int, means: FloatArray) -> FloatArray:
+        """Q of entities of `kind` with `means` (n, d): (d, d), or (n, d, d) where it turns with them."""
+        model = self.motion[kind]
+        if getattr(model, "state_dependent_noise", True):
+            return model.noise_covariance(self.setup.dt, means)
+        if self._Q[kind] is None:
+            self._Q[kind] = model.noise_covariance(self.setup.dt)
+        return self._Q[kind]
+
     def _predict_component(self, c: Component) -> None:
-        dt, D, mean = self.setup.dt, c.mean.size, c.mean
+        D, mean = c.mean.size, c.mean
         blocks = []
         for kind in (VEHICLE, FEATURE):
             entities = np.flatnonzero(c.kind == kind)
             if entities.size:
                 idx = c.indices(entities, int(self.dims[kind]))                        # (n, d)
-                Q = self.motion[kind].noise_covariance(dt, mean[idx])                 # from θ, not θ⁻
+                Q = self._noise(kind, mean[idx])                                      # from θ, not θ⁻
                 blocks.append((idx, self.F[kind], Q))
         new_mean = mean.copy()
         for idx, F, _ in blocks:
@@ -489,13 +500,14 @@ class ComponentFilter:
                 Hc = H[:, self.observed_cols[kind]]                              # H on y
                 blocks.append((at[e, None] + np.arange(Hc.shape[1]), Hc))        # (n, w) indices
             nu = g.z - sum(np.einsum("ij,nj->ni", Hc, y[idx]) for idx, Hc in blocks)   # ν = z − H θ⁻
-            R_nu = np.linalg.solve(g.R, nu[..., None])[..., 0]                  # R⁻¹ ν
+            R_inv = np.linalg.solve(g.R, np.eye(g.z.shape[1]))                  # R⁻¹ (information)
+            R_nu = np.einsum("nij,nj->ni", R_inv, nu)                           # R⁻¹ ν
             nu_R_nu += float(np.sum(nu * R_nu))
             dof += nu.size
             for idx_t, H_t in blocks:
                 a_at.append(idx_t.ravel())
                 a_val.append(np.einsum("it,ni->nt", H_t, R_nu).ravel())         # Hᵀ R⁻¹ ν
-                R_H = np.linalg.solve(g.R, np.broadcast_to(H_t, (len(g.z), *H_t.shape)))  # R⁻¹ H_t
+                R_H = R_inv @ H_t                                                   # R⁻¹ H_t
                 for idx_u, H_u in blocks:
                     J_at.append((idx_u[:, :, None] * r + idx_t[:, None, :]).ravel())
                     J_val.append(np.einsum("iu,nit->nut", H_u, R_H).ravel())    # H_uᵀ R⁻¹ H_t
