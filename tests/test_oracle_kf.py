@@ -285,7 +285,8 @@ def _states_difference(a: Estimate, b: Estimate, part: str, k: int) -> float:
 def test_components_equal_dense_on_the_paper_presets(seed: int, preset: str) -> None:
     # froehle2018 observes positions only (the Woodbury update on r = D/2 coordinates),
     # brambilla position and velocity (the update through the inverse)
-    rec = preset_recording(preset, [seed, 90], {"n_steps": 30} if preset == "froehle2018" else {})
+    overrides = {"froehle2018": {"n_steps": 30}, "brambilla-crossroad": {"n_steps": 14, "n_vehicles": 8}}
+    rec = preset_recording(preset, [seed, 90], overrides.get(preset, {}))
     assert forms_difference(rec) < FORMS_RTOL
 
 
@@ -305,9 +306,9 @@ def test_components_equal_dense_on_sumo_traffic(seed: int) -> None:
 
 def test_components_equal_dense_as_vehicles_enter_and_leave(seed: int) -> None:
     # vehicle 0 leaves for steps 5–9 (its component shrinks, then it is born again, alone),
-    # vehicle 1 enters at step 3 and leaves at 20
-    rec = with_traffic(preset_recording("brambilla-crossroad", [seed, 92], {"n_vehicles": 8}),
-                       {0: range(5, 10), 1: [*range(3), *range(20, 32)]})
+    # vehicle 1 enters at step 3 and leaves at 12
+    rec = with_traffic(preset_recording("brambilla-crossroad", [seed, 92], {"n_vehicles": 8, "n_steps": 16}),
+                       {0: range(5, 10), 1: [*range(3), *range(12, 16)]})
     assert forms_difference(rec) < FORMS_RTOL
 
 

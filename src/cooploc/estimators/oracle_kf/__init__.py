@@ -32,7 +32,6 @@ The model written out: docs/oracle_kf.md.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
@@ -40,28 +39,12 @@ import numpy as np
 from cooploc.budget import Sizes
 from cooploc.estimators.oracle_kf.components import ComponentFilter
 from cooploc.estimators.oracle_kf.dense import DenseJointFilter
-from cooploc.params import Params, param
+from cooploc.estimators.oracle_kf.params import OracleKFParams
+from cooploc.params import Params
 from cooploc.registry import register_estimator
 from cooploc.types import AssociationTruth, Estimate, Frame, Setup
 
 __all__ = ["OracleKF", "OracleKFParams"]
-
-
-@dataclass(frozen=True)
-class OracleKFParams(Params):
-    """Parameters of `oracle-kf`.
-
-    Attributes
-    ----------
-    feature_timeout : drop a feature after this many steps without a measurement
-        (keeps the joint state bounded in traffic where features come and go).
-    dense : run the dense joint filter (one covariance over everything, O(D³) per step)
-        instead of the component form; the same numbers up to round-off. A reference
-        for tests and benchmarks.
-    """
-
-    feature_timeout: int = param(100, ge=1)
-    dense: bool = False
 
 
 @register_estimator

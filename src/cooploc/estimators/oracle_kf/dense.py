@@ -23,7 +23,7 @@ from cooploc.gaussian import Gaussians, block_diagonal, kf_update_nis, symmetriz
 from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup
 
 if TYPE_CHECKING:
-    from cooploc.estimators.oracle_kf import OracleKFParams
+    from cooploc.estimators.oracle_kf.params import OracleKFParams
 
 __all__ = ["DenseJointFilter"]
 
