@@ -99,7 +99,7 @@ def _starts(kind: IntArray, dims: IntArray) -> IntArray:
     return np.concatenate([[0], np.cumsum(dims[kind])[:-1]]).astype(np.int64)
 
 
-def _stack_component(kind: int, ids: IntArray, beliefs: Gaussians, dims: IntArray) -> list[Component]:
+def _singletons(kind: int, ids: IntArray, beliefs: Gaussians, dims: IntArray) -> list[Component]:
     """One component per belief of a stack (entities of one kind, uncoupled)."""
     kinds = np.array([kind])
     return [Component(kinds, ids[i:i + 1], np.zeros(1, np.int64), beliefs.mean[i].copy(),
@@ -329,7 +329,7 @@ class ComponentFilter:
         first = first[np.isin(origin[first], new)]                    # the first row of each, in id order
         sensor_means = self._vehicle_means(frame.batches["v2f"].sensor[rows[first]])
         born = feature_births(self.setup, frame, new, rows[first], sensor_means)
-        self.components += _stack_component(FEATURE, new, born, self.dims)
+        self.components += _singletons(FEATURE, new, born, self.dims)
         self._lookup = None
         ids = np.concatenate([self.feature_ids, new])
         order = np.argsort(ids, kind="stable")
@@ -345,7 +345,7 @@ class ComponentFilter:
         subjects, counts = np.unique(gnss_subjects, return_counts=True)
         promote = np.isin(self.alone_ids, sensors) | np.isin(self.alone_ids, subjects[counts > 1])
         if promote.any():
-            self.components += _stack_component(VEHICLE, self.alone_ids[promote],
+            self.components += _singletons(VEHICLE, self.alone_ids[promote],
                                                 self.alone.take(promote), self.dims)
             self.alone_ids, self.alone = self.alone_ids[~promote], self.alone.take(~promote)
             self._lookup = None
