@@ -7,6 +7,9 @@
     poorly localised vehicle and matches it for the well localised one.
 (c) Clutter rows are ignored, missed detections handled.
 (d) It is handed the association and nothing else.
+(e) The component form (the default) equals the dense joint filter (`dense=True`) to
+    round-off on every kind of run: paper presets, SUMO traffic, vehicles entering and
+    leaving, empty frames, features timing out; components merge when rows couple them.
 """
 
 from __future__ import annotations
@@ -19,8 +22,10 @@ from scipy.linalg import block_diag, solve
 
 from cooploc.errors import ConfigError
 from cooploc.estimators import get_estimator, make_estimator
-from cooploc.types import AssociationTruth, Recording
-from helpers import froehle_recording, position_errors, run_estimator, with_traffic
+from cooploc.estimators.oracle_kf import OracleKFParams
+from cooploc.testing import CheckSkipped, sumo_traffic, with_empty_frames
+from cooploc.types import AssociationTruth, Estimate, Recording
+from helpers import froehle_recording, position_errors, preset_recording, run_estimator, with_traffic
 
 # Dense conditioning of a ≤ 64-dimensional joint Gaussian vs a recursive Joseph-form
 # filter: both exact in exact arithmetic; the joint covariance has condition number
@@ -233,3 +238,96 @@ def test_true_states_do_not_matter(seed: int) -> None:
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x.vehicles.mean, y.vehicles.mean)
         np.testing.assert_array_equal(x.vehicles.cov, y.vehicles.cov)
+
+
+# ----------------------------------------------------------------------------
+# the component form equals the dense joint filter
+# ----------------------------------------------------------------------------
+
+# Both forms are exact; they differ in the order of operations only. The worst
+# conditioning is a feature's birth: a (100 m)² first-fix prior against rows of
+# (0.1 m)², P⁻/R ≈ 1e6, where either form keeps ≈ 1e-16 × 1e6 of relative precision.
+# Differences are measured relative to each belief's own scale (its largest |entry|).
+FORMS_RTOL = 1e-9
+
+
+def forms_difference(rec: Recording, params: OracleKFParams | None = None) -> float:
+    """Largest difference between the component and dense forms over a run, relative to
+    each belief's scale; also checks they estimate the same entities with the same NIS dof."""
+    params = params or OracleKFParams()
+    sparse = run_estimator("oracle-kf", rec, params=params)
+    dense = run_estimator("oracle-kf", rec, params=dataclasses.replace(params, dense=True))
+    worst = 0.0
+    for k, (a, b) in enumerate(zip(sparse, dense, strict=True)):
+        assert a.info["nis"][1] == b.info["nis"][1] and a.info["state_dim"] == b.info["state_dim"], k
+        worst = max(worst, _relative(a.info["nis"][0], b.info["nis"][0], max(1.0, abs(b.info["nis"][0]))))
+        for part in ("vehicles", "features"):
+            worst = max(worst, _states_difference(a, b, part, k))
+    return worst
+
+
+def _relative(x, y, scale) -> float:
+    return float(np.max(np.abs(np.asarray(x) - np.asarray(y)) / scale, initial=0.0))
+
+
+def _states_difference(a: Estimate, b: Estimate, part: str, k: int) -> float:
+    x, y = getattr(a, part), getattr(b, part)
+    assert (x is None) == (y is None), (k, part)
+    if x is None or len(y) == 0:
+        return 0.0
+    np.testing.assert_array_equal(x.ids, y.ids, err_msg=f"step {k}, {part}")
+    mean_scale = np.abs(y.mean).max(axis=1, keepdims=True)
+    cov_scale = np.abs(y.cov).max(axis=(1, 2), keepdims=True)
+    return max(_relative(x.mean, y.mean, mean_scale), _relative(x.cov, y.cov, cov_scale))
+
+
+@pytest.mark.parametrize("preset", ["froehle2018", "brambilla-crossroad", "brambilla-road"])
+def test_components_equal_dense_on_the_paper_presets(seed: int, preset: str) -> None:
+    # froehle2018 observes positions only (the Woodbury update on r = D/2 coordinates),
+    # brambilla position and velocity (the update through the inverse)
+    overrides = {"froehle2018": {"n_steps": 30}, "brambilla-crossroad": {"n_steps": 14, "n_vehicles": 8}}
+    rec = preset_recording(preset, [seed, 90], overrides.get(preset, {}))
+    assert forms_difference(rec) < FORMS_RTOL
+
+
+def test_components_equal_dense_with_missed_detections_clutter_and_timeouts(seed: int) -> None:
+    # P_D = 0.4 and a 3-step timeout: features are dropped and seen again (born twice)
+    rec = froehle_recording([seed, 91], detection_probability=0.4, clutter_rate=2.0)
+    assert forms_difference(rec, OracleKFParams(feature_timeout=3)) < FORMS_RTOL
+
+
+def test_components_equal_dense_on_sumo_traffic(seed: int) -> None:
+    try:
+        rec = sumo_traffic(seed)
+    except CheckSkipped as exc:  # without the sumo extra there is no traffic to compare on
+        pytest.skip(str(exc))
+    assert forms_difference(rec) < FORMS_RTOL
+
+
+def test_components_equal_dense_as_vehicles_enter_and_leave(seed: int) -> None:
+    # vehicle 0 leaves for steps 5–9 (its component shrinks, then it is born again, alone),
+    # vehicle 1 enters at step 3 and leaves at 12
+    rec = with_traffic(preset_recording("brambilla-crossroad", [seed, 92], {"n_vehicles": 8, "n_steps": 16}),
+                       {0: range(5, 10), 1: [*range(3), *range(12, 16)]})
+    assert forms_difference(rec) < FORMS_RTOL
+
+
+def test_components_equal_dense_through_empty_frames(seed: int) -> None:
+    rec = with_empty_frames(froehle_recording([seed, 93], n_steps=20))
+    assert forms_difference(rec) < FORMS_RTOL
+
+
+def test_components_merge_only_when_rows_couple_them(seed: int) -> None:
+    # brambilla-road: two vehicles that see features only after a few steps. Before, each
+    # is alone (no component); once a row links them through a feature, one component.
+    rec = preset_recording("brambilla-road", [seed, 94])
+    est = make_estimator("oracle-kf", rec.setup, None, np.random.default_rng(0), truth=rec.truth)
+    seen: set[int] = set()
+    for k, frame in enumerate(rec.frames):
+        est.step(frame)
+        origin = rec.truth.origin[k]["v2f"]
+        seen |= set(frame.batches["v2f"].sensor[origin >= 0].tolist())
+        members = [set(c.ids[c.kind == 0].tolist()) for c in est._filter.components]
+        assert set(est._filter.alone_ids.tolist()) == {0, 1} - seen, k
+        assert sorted(map(sorted, members)) == ([sorted(seen)] if seen else []), k
+    assert seen == {0, 1}

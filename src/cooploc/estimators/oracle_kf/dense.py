@@ -1,94 +1,38 @@
-"""`oracle-kf`: the centralized Kalman filter with known association — the accuracy bound.
+"""`oracle-kf` in its dense form: one joint Kalman filter, the reference of the component form.
 
-One Kalman filter over the stacked state θ = [x_1; …; x_S; f_1; …; f_K] of every
-vehicle and feature (Fröhle §III, eq. (9) with the association variables fixed to
-their true values), fed every GNSS row and every V2F row whose true origin is read from
-`Truth.origin`. For the linear-Gaussian scenarios (Fröhle §V) this is the exact MMSE
-estimator given the association, so no estimator that must also infer the
-association can beat it beyond Monte Carlo noise. Fröhle §V-B compares its loopy BP
-with "a centralized Kalman filter over the joint total state"; Brambilla 2020 calls
-the same reference "ICP with known DA".
-
-It reads only the association (`AssociationTruth`: origins and infrastructure poses),
-never true states. Clutter rows (origin −1) are discarded — the oracle knows them.
-
-Per step: vehicles that leave are marginalised out (their rows and columns dropped),
-entering vehicles and newly seen features are appended with their prior (or a broad
-belief around their first fix), features unseen for `feature_timeout` steps are
-dropped; then one joint prediction and one joint Joseph-form update with all rows
-stacked. Cost O(D³ + D² m) for D = 4(S + K) states and m measurement components.
-`Estimate.info["nis"]`: that update's NIS with its m degrees of freedom ((0.0, 0) on a
-step without rows; `types.Estimate`).
-
-The model written out: docs/oracle_kf.md.
+The model is the package's (`cooploc.estimators.oracle_kf`). Per step: vehicles that
+leave are marginalised out (their rows and columns dropped), entering vehicles and
+newly seen features are appended with their prior (or a broad belief around their
+first fix), features unseen for `feature_timeout` steps are dropped; then one joint
+prediction and one joint Joseph-form update with all rows stacked (`kf_update_nis`,
+square-root form where the Joseph form fails). Cost O(D³ + D² m) for D = 4(S + K)
+states and m measurement components, whatever the coupling: the component form
+(`components`) gives the same numbers where the coupling is sparse. Kept as the
+reference the tests compare with, and selectable with `dense=True`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import ClassVar
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cooploc.budget import Sizes
-from cooploc.estimators.base import birth_beliefs, checked_states, default_birth_cov, predict_steps
+from cooploc.estimators.base import birth_beliefs, checked_states
+from cooploc.estimators.oracle_kf.births import feature_births
 from cooploc.gaussian import Gaussians, block_diagonal, kf_update_nis, symmetrize
-from cooploc.params import Params, param
-from cooploc.registry import register_estimator
 from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup
 
-__all__ = ["OracleKF", "OracleKFParams"]
+if TYPE_CHECKING:
+    from cooploc.estimators.oracle_kf.params import OracleKFParams
+
+__all__ = ["DenseJointFilter"]
 
 
-@dataclass(frozen=True)
-class OracleKFParams(Params):
-    """Parameters of `oracle-kf`.
+class DenseJointFilter:
+    """`oracle-kf` as one dense joint Kalman filter (module docstring): the reference."""
 
-    Attributes
-    ----------
-    feature_timeout : drop a feature after this many steps without a measurement
-        (keeps the joint state bounded in traffic where features come and go).
-    """
-
-    feature_timeout: int = param(100, ge=1)
-
-
-@register_estimator
-class OracleKF:
-    """Joint Kalman filter over all vehicles and features with the true association.
-
-    Uses: identified GNSS rows and V2F rows (their true origins). Anonymous GNSS, radar,
-    odometry and AoA it does not fuse: where a scenario has those it is no bound.
-    """
-
-    name: ClassVar[str] = "oracle-kf"
-    summary: ClassVar[str] = (
-        "centralized joint Kalman filter with KNOWN association (reads Truth.origin) — "
-        "the accuracy bound, not a method"
-    )
-    Params: ClassVar[type[Params]] = OracleKFParams
-    needs_truth: ClassVar[bool] = True
-    default_preset: ClassVar[str] = "froehle2018"
-    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
-        "gnss": ("gnss-position",), "v2f": ("relative-position",)}
-
-    @staticmethod
-    def memory_bytes(sizes: Sizes, params: OracleKFParams) -> float:
-        """Peak memory of the joint state (`cooploc.budget`): the dense D × D covariance
-        and the few D × D products of one Joseph update, D = state_dim × (S + K)."""
-        dim = sizes.state_dim * (sizes.n_vehicles + sizes.n_features)
-        return 4 * 8.0 * dim**2
-
-    @staticmethod
-    def flops_per_step(sizes: Sizes, params: OracleKFParams) -> float:
-        """Operations of one step (`cooploc.budget`): the joint prediction and Joseph update
-        multiply D × D matrices a few times, ~ 4 D³."""
-        dim = sizes.state_dim * (sizes.n_vehicles + sizes.n_features)
-        return 4.0 * dim**3
-
-    def __init__(self, setup: Setup, params: OracleKFParams, rng: np.random.Generator, *,
-                 truth: AssociationTruth) -> None:
+    def __init__(self, setup: Setup, params: OracleKFParams, truth: AssociationTruth) -> None:
+        self.name = "oracle-kf"
         self.setup, self.params, self.truth = setup, params, truth
         self.dx = setup.vehicle_layout.dim
         self.df = setup.feature_layout.dim if setup.feature_layout is not None else 0
@@ -138,33 +82,6 @@ class OracleKF:
         self.feature_ids = np.concatenate([self.feature_ids, feature_ids])
         self.last_seen = np.concatenate([self.last_seen, np.full(feature_ids.size, k)])
 
-    def _feature_births(self, frame: Frame, ids: IntArray, v2f_rows: IntArray,
-                        origin: IntArray) -> Gaussians:
-        """Priors of newly seen features: `Setup.feature_prior`, or broad at the first fix."""
-        setup = self.setup
-        mean = np.zeros((ids.size, self.df))
-        birth = default_birth_cov(setup)[: self.df, : self.df] if self.df == self.dx else (
-            1e4 * np.eye(self.df))
-        cov = np.repeat(birth[None], ids.size, axis=0)
-        prior = setup.feature_prior
-        known = np.isin(ids, prior.ids) if prior is not None else np.zeros(ids.size, bool)
-        if known.any():
-            p = prior.take(ids[known])
-            # the prior holds at step 0; a feature first seen at step k was moving unseen
-            # since: predict it k steps (exactly what keeping it in the state would give)
-            predicted = predict_steps(Gaussians(p.mean, p.cov), setup.feature_motion, setup.dt,
-                                      frame.k)
-            mean[known], cov[known] = predicted.mean, predicted.cov
-        v2f = frame.batches["v2f"]
-        sensor = setup.sensors["v2f"]
-        vstart, _ = self._blocks()
-        pos_f = list(sensor.state_indices)
-        for i in np.flatnonzero(~known):  # first fix: f ≈ x̂_s + z
-            row = v2f_rows[origin[v2f_rows] == ids[i]][0]
-            s = np.searchsorted(self.vehicle_ids, v2f.sensor[row])
-            mean[i, pos_f] = self.mean[vstart[s] + np.asarray(pos_f)] + v2f.z[row]
-        return Gaussians(mean, cov)
-
     # -- filter ---------------------------------------------------------------------
 
     def step(self, frame: Frame) -> Estimate:
@@ -194,7 +111,12 @@ class OracleKF:
             v2f_rows = np.flatnonzero((o >= 0) & np.isin(v2f.sensor, self.vehicle_ids))
             new_f = np.setdiff1d(o[v2f_rows], self.feature_ids)
             if new_f.size:
-                f_birth = self._feature_births(frame, new_f, v2f_rows, o)
+                first = v2f_rows[np.unique(o[v2f_rows], return_index=True)[1]]
+                first = first[np.isin(o[first], new_f)]
+                vstart, _ = self._blocks()
+                s = np.searchsorted(self.vehicle_ids, v2f.sensor[first])
+                sensor_means = self.mean[vstart[s, None] + np.arange(self.dx)]
+                f_birth = feature_births(self.setup, frame, new_f, first, sensor_means)
                 self._append(Gaussians(np.zeros((0, self.dx)), np.zeros((0, self.dx, self.dx))),
                              np.zeros(0, np.int64), f_birth, new_f, k)
         self._sort()

@@ -1,0 +1,559 @@
+"""`oracle-kf` in component form: one dense covariance per connected component of the coupling.
+
+The filter is the dense joint one (`dense`, the package docstring); this is the same
+filter with the zeros of its covariance left out.
+
+Why components, and not a sparse information filter
+---------------------------------------------------
+Two entities (vehicles, features) are correlated once a V2F row has linked them,
+directly or through other entities; the correlation then decays under process noise
+and GNSS but never vanishes exactly. An information matrix does not stay sparse
+either: the prediction marginalises the previous state, which fills the information
+matrix in over every coupled set. So the exact structure is: the joint covariance is
+block diagonal over the connected components of the coupling graph and dense inside
+each. A V2F row between two components merges them; a component shrinks when its
+vehicles leave and its features time out (marginalising is dropping rows and columns,
+exact); it never splits (the entities left stay correlated). A vehicle no V2F row has
+linked yet is alone: the alone vehicles are independent Gaussians kept as one stack
+(each a `gnss-kf` of its own) and predicted and updated in one batch.
+
+One step
+--------
+1. Marginalise out the vehicles that left and the features unseen for
+   `feature_timeout` steps.
+2. Predict each component with the block-diagonal motion model, P⁻ = F P Fᵀ + Q block
+   by block: O(D² d) for D states of entities of dimension d, not the O(D³) of a dense F.
+3. Append the entering vehicles (alone) and the features seen for the first time
+   (`births`), each a component of its own.
+4. Merge the components that this step's V2F rows link (connected components of the
+   graph whose nodes are the components and whose edges are the rows).
+5. Update each component with its rows in information form, on the r coordinates the
+   rows observe, y = Eᵀθ (the position of each observed entity). The rows add
+   J = Σ Hᵀ R⁻¹ H (r × r) and a = Σ Hᵀ R⁻¹ ν to the information of y, ν = z − H θ⁻ the
+   innovations. With G = Eᵀ P⁻ E (r × r), Woodbury's identity gives the covariance form
+
+       b = (I + J G)⁻¹ a,   M = (I + J G)⁻¹ J,
+       θ = θ⁻ + P⁻E b,      P = P⁻ − P⁻E M Eᵀ P⁻,
+       NIS = Σ νᵀ R⁻¹ ν − (G a)ᵀ b   ( = νᵀ S⁻¹ ν, S = H P⁻ Hᵀ + R ),
+
+   O(D² r + r³). The m measurement components of a step overlap on the same
+   coordinates (every vehicle has a GNSS row and V2F rows, a feature is seen by
+   several vehicles), so r < m, and the cost is below the O(D² m + m³) of a Kalman gain
+   and far below the O(D³) of the dense Joseph form. Where P⁻ and R are so far apart
+   that the posterior of y comes out not positive definite (a small difference of huge
+   numbers), the component takes the stacked-row update of the dense form instead
+   (`kf_update_nis`: Joseph form, or square-root form where that fails).
+
+Cost per step: Σ over components of O(D_c² r_c + r_c³), plus O(n) for the alone
+vehicles — linear in the number of vehicles while components stay small, and the
+dense form's O(D³) where every entity ends up in one component (a dense city whose
+vehicles share features).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from cooploc.estimators.base import birth_beliefs, checked_states
+from cooploc.estimators.oracle_kf.births import feature_births
+from cooploc.gaussian import Gaussians, block_diagonal, kf_predict, kf_update_nis, symmetrize
+from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup
+
+if TYPE_CHECKING:
+    from cooploc.estimators.oracle_kf.params import OracleKFParams
+
+__all__ = ["Component", "ComponentFilter"]
+
+VEHICLE, FEATURE = 0, 1
+
+
+@dataclass
+class Component:
+    """A set of coupled entities and their dense joint Gaussian.
+
+    Attributes
+    ----------
+    kind : (n,) VEHICLE or FEATURE of each entity.
+    ids : (n,) the entity ids (vehicle and feature ids may overlap: `kind` tells them apart).
+    start : (n,) index of each entity's first state component in `mean`.
+    mean : (D,) stacked state.
+    cov : (D, D) joint covariance.
+    """
+
+    kind: IntArray
+    ids: IntArray
+    start: IntArray
+    mean: FloatArray
+    cov: FloatArray
+
+    def indices(self, entities: IntArray, dim: int) -> IntArray:
+        """(len(entities), dim) state indices of `entities` (positions in this component)."""
+        return self.start[entities, None] + np.arange(dim)
+
+
+def _starts(kind: IntArray, dims: IntArray) -> IntArray:
+    return np.concatenate([[0], np.cumsum(dims[kind])[:-1]]).astype(np.int64)
+
+
+def _singletons(kind: int, ids: IntArray, beliefs: Gaussians, dims: IntArray) -> list[Component]:
+    """One component per belief of a stack (entities of one kind, uncoupled)."""
+    kinds = np.array([kind])
+    return [Component(kinds, ids[i:i + 1], np.zeros(1, np.int64), beliefs.mean[i].copy(),
+                      beliefs.cov[i].copy()) for i in range(ids.size)]
+
+
+def _select(c: Component, keep: np.ndarray, dims: IntArray) -> Component:
+    """`c` with only the entities `keep` (mask): the others marginalised out."""
+    entities = np.flatnonzero(keep)
+    lengths = dims[c.kind[entities]]
+    offsets = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    idx = np.repeat(c.start[entities] - offsets, lengths) + np.arange(lengths.sum())
+    kind = c.kind[entities]
+    return Component(kind, c.ids[entities], _starts(kind, dims), c.mean[idx], c.cov[np.ix_(idx, idx)])
+
+
+def _merge(parts: Sequence[Component], dims: IntArray) -> Component:
+    """One component of uncoupled `parts`: means stacked, covariances block diagonal."""
+    kind = np.concatenate([p.kind for p in parts])
+    D = sum(p.mean.size for p in parts)
+    cov = np.zeros((D, D))
+    at = 0
+    for p in parts:
+        cov[at:at + p.mean.size, at:at + p.mean.size] = p.cov
+        at += p.mean.size
+    return Component(kind, np.concatenate([p.ids for p in parts]), _starts(kind, dims),
+                     np.concatenate([p.mean for p in parts]), cov)
+
+
+def _blocks_positive_definite(cov: FloatArray, c: Component, dims: IntArray) -> bool:
+    """Whether every entity's diagonal block of `cov` (a covariance of `c`) is positive definite."""
+    for kind in (VEHICLE, FEATURE):
+        entities = np.flatnonzero(c.kind == kind)
+        if entities.size:
+            idx = c.indices(entities, int(dims[kind]))
+            try:
+                np.linalg.cholesky(cov[idx[:, :, None], idx[:, None, :]])
+            except np.linalg.LinAlgError:
+                return False
+    return bool(np.isfinite(cov).all())
+
+
+def _spd_inverse_lower(A: FloatArray) -> FloatArray | None:
+    """The lower triangle of A⁻¹ (the upper one is garbage) of a symmetric positive definite
+    A, of which only the lower triangle is read, by Cholesky (LAPACK potrf, potri); None
+    if A is not positive definite in float64."""
+    from scipy.linalg import lapack
+
+    L, info = lapack.dpotrf(A, lower=True)
+    if info != 0:
+        return None
+    inv, info = lapack.dpotri(L, lower=True, overwrite_c=True)
+    return inv if info == 0 else None
+
+
+def _inverse_update(P: FloatArray, E: IntArray, J: FloatArray) -> FloatArray | None:
+    """(P⁻¹ + E J Eᵀ)⁻¹: the posterior covariance by adding the information to the inverse."""
+    info = _spd_inverse_lower(P)
+    if info is None:
+        return None
+    info[np.ix_(E, E)] += J                                            # Λ = Λ⁻ + E J Eᵀ
+    post = _spd_inverse_lower(info)
+    if post is None:
+        return None
+    upper = np.triu_indices_from(post, 1)
+    post[upper] = post.T[upper]
+    return post
+
+
+@dataclass(frozen=True)
+class _Rows:
+    """Rows of one sensor of one step for one component: z_i = Σ_t H_t θ_{e_t(i)} + w_i.
+
+    z (n, dz), R (n, dz, dz); terms: per entity the row involves, the positions of
+    the entities in the component (n,), the observation block H_t (dz, d_t) and the
+    entities' kind.
+    """
+
+    z: FloatArray
+    R: FloatArray
+    terms: tuple[tuple[IntArray, FloatArray, int], ...]
+
+    def take(self, rows: IntArray) -> _Rows:
+        return _Rows(self.z[rows], self.R[rows], tuple((e[rows], H, kind) for e, H, kind in self.terms))
+
+
+class ComponentFilter:
+    """`oracle-kf` in component form (module docstring)."""
+
+    def __init__(self, setup: Setup, params: OracleKFParams, truth: AssociationTruth) -> None:
+        self.name = "oracle-kf"
+        self.setup, self.params, self.truth = setup, params, truth
+        dx = setup.vehicle_layout.dim
+        df = setup.feature_layout.dim if setup.feature_layout is not None else 0
+        self.dims = np.array([dx, df])
+        self.motion = (setup.vehicle_motion, setup.feature_motion)
+        self.F = tuple(m.transition_matrix(setup.dt) if m is not None else None for m in self.motion)
+        self.Hg = (setup.sensors["gnss"].observation_matrix(dx) if "gnss" in setup.sensors else None)
+        v2f = setup.sensors.get("v2f")
+        self.Hx = v2f.observation_matrix(dx) if v2f is not None and df else None
+        self.Hf = v2f.observation_matrix(df) if v2f is not None and df else None
+        # the state components any row observes, per kind: the coordinates y of the update
+        used = [np.zeros(dx, bool), np.zeros(df, bool)]
+        for kind, H in ((VEHICLE, self.Hg), (VEHICLE, self.Hx), (FEATURE, self.Hf)):
+            if H is not None:
+                used[kind] |= (H != 0).any(axis=0)
+        self.observed_cols = tuple(np.flatnonzero(u) for u in used)
+
+        self.alone_ids: IntArray = np.zeros(0, dtype=np.int64)
+        self.alone = Gaussians(np.zeros((0, dx)), np.zeros((0, dx, dx)))
+        self.components: list[Component] = []
+        self.feature_ids: IntArray = np.zeros(0, dtype=np.int64)
+        self.last_seen: IntArray = np.zeros(0, dtype=np.int64)
+        self._lookup: tuple[IntArray, IntArray, IntArray] | None = None
+        self._present: IntArray | None = None   # the vehicles of the previous step
+        self._Q: list[FloatArray | None] = [None, None]   # Q of a model whose noise is constant
+
+    # -- one step -------------------------------------------------------------------
+
+    def step(self, frame: Frame) -> Estimate:
+        k = frame.k
+        present = frame.vehicles
+        self._forget(present, k)
+        self._predict()
+        self._enter(frame, present)
+        origin = self.truth.origin[k].get("v2f")
+        v2f = frame.batches.get("v2f")
+        rows = np.zeros(0, dtype=np.int64)
+        if v2f is not None and len(v2f) and self.dims[FEATURE] and origin is not None:
+            rows = np.flatnonzero((origin >= 0) & np.isin(v2f.sensor, present))
+        gnss = frame.batches.get("gnss")
+        gnss_rows = np.zeros(0, dtype=np.int64)
+        if gnss is not None and len(gnss) and self.Hg is not None:
+            gnss_rows = np.flatnonzero(np.isin(gnss.subject, present))
+        if rows.size:
+            self._first_seen(frame, rows, origin[rows], k)
+            self._couple(v2f.sensor[rows], origin[rows],
+                         gnss.subject[gnss_rows] if gnss_rows.size else gnss_rows)
+        nis = self._update(frame, gnss_rows, rows, origin)
+        return self._estimate(nis)
+
+    def _forget(self, present: IntArray, k: int) -> None:
+        """Marginalise out the vehicles that left and the features unseen for too long."""
+        fresh = k - self.last_seen <= self.params.feature_timeout
+        if fresh.all() and np.array_equal(present, self._present):
+            return  # the usual step: the same vehicles, no feature timed out
+        self._lookup, self._present = None, present
+        stale = self.feature_ids[~fresh]
+        self.feature_ids, self.last_seen = self.feature_ids[fresh], self.last_seen[fresh]
+        stay = np.isin(self.alone_ids, present)
+        if not stay.all():
+            self.alone_ids, self.alone = self.alone_ids[stay], self.alone.take(stay)
+        kept = []
+        for c in self.components:
+            keep = np.where(c.kind == VEHICLE, np.isin(c.ids, present), ~np.isin(c.ids, stale))
+            if keep.all():
+                kept.append(c)
+            elif keep.any():
+                kept.append(_select(c, keep, self.dims))
+        self.components = kept
+
+    def _predict(self) -> None:
+        """θ⁻ = F θ, P⁻ = F P Fᵀ + Q, block by block (F and Q are block diagonal)."""
+        if len(self.alone):
+            self.alone = kf_predict(self.alone, self.F[VEHICLE], self._noise(VEHICLE, self.alone.mean))
+        for c in self.components:
+            self._predict_component(c)
+
+    def _noise(self, kind: int, means: FloatArray) -> FloatArray:
+        """Q of entities of `kind` with `means` (n, d): (d, d), or (n, d, d) where it turns with them."""
+        model = self.motion[kind]
+        if getattr(model, "state_dependent_noise", True):
+            return model.noise_covariance(self.setup.dt, means)
+        if self._Q[kind] is None:
+            self._Q[kind] = model.noise_covariance(self.setup.dt)
+        return self._Q[kind]
+
+    def _predict_component(self, c: Component) -> None:
+        D, mean = c.mean.size, c.mean
+        blocks = []
+        for kind in (VEHICLE, FEATURE):
+            entities = np.flatnonzero(c.kind == kind)
+            if entities.size:
+                idx = c.indices(entities, int(self.dims[kind]))                        # (n, d)
+                Q = self._noise(kind, mean[idx])                                      # from θ, not θ⁻
+                blocks.append((idx, self.F[kind], Q))
+        new_mean = mean.copy()
+        for idx, F, _ in blocks:
+            new_mean[idx] = mean[idx] @ F.T
+        if self.dims[VEHICLE] == self.dims[FEATURE] or not self.dims[FEATURE]:
+            # one entity dimension d: P as n × n blocks, F_e the F of entity e's kind
+            d, n = int(self.dims[VEHICLE]), c.ids.size
+            F = np.stack(self.F)[c.kind] if self.dims[FEATURE] else self.F[VEHICLE]   # (n, d, d)
+            FP = F @ c.cov.reshape(n, d, D)                                       # block row e: F_e P_e·
+            cov = (F @ np.ascontiguousarray(FP.reshape(D, D).T).reshape(n, d, D)).reshape(D, D).T
+        else:
+            FP = c.cov.copy()
+            for idx, F, _ in blocks:
+                FP[idx] = F @ c.cov[idx]                                          # F P
+            cov = FP.copy()
+            for idx, F, _ in blocks:
+                cov[:, idx] = FP[:, idx] @ F.T                                    # (F P) Fᵀ
+        for idx, _, Q in blocks:
+            cov[idx[:, :, None], idx[:, None, :]] += Q
+        c.mean, c.cov = new_mean, symmetrize(cov)
+
+    def _enter(self, frame: Frame, present: IntArray) -> None:
+        """Entering vehicles join the alone ones, at their prior or first fix."""
+        in_state = np.concatenate([self.alone_ids, *[c.ids[c.kind == VEHICLE] for c in self.components]])
+        new = np.setdiff1d(present, in_state)
+        if not new.size:
+            return
+        born = birth_beliefs(self.setup, new, frame)
+        self._lookup = None
+        ids = np.concatenate([self.alone_ids, new])
+        order = np.argsort(ids, kind="stable")
+        self.alone_ids = ids[order]
+        self.alone = Gaussians(np.concatenate([self.alone.mean, born.mean])[order],
+                               np.concatenate([self.alone.cov, born.cov])[order])
+
+    def _first_seen(self, frame: Frame, rows: IntArray, origin: IntArray, k: int) -> None:
+        """Features seen for the first time become components of their own (`births`)."""
+        new = np.setdiff1d(origin, self.feature_ids)
+        if not new.size:
+            return
+        first = np.unique(origin, return_index=True)[1]
+        first = first[np.isin(origin[first], new)]                    # the first row of each, in id order
+        sensor_means = self._vehicle_means(frame.batches["v2f"].sensor[rows[first]])
+        born = feature_births(self.setup, frame, new, rows[first], sensor_means)
+        self.components += _singletons(FEATURE, new, born, self.dims)
+        self._lookup = None
+        ids = np.concatenate([self.feature_ids, new])
+        order = np.argsort(ids, kind="stable")
+        self.feature_ids = ids[order]
+        self.last_seen = np.concatenate([self.last_seen, np.full(new.size, k)])[order]
+
+    def _couple(self, sensors: IntArray, features: IntArray, gnss_subjects: IntArray) -> None:
+        """Merge the components that V2F rows (sensor, feature) link.
+
+        Alone vehicles that sense a feature, or that have more than one GNSS row (the
+        batch update takes one row per vehicle), become components first.
+        """
+        subjects, counts = np.unique(gnss_subjects, return_counts=True)
+        promote = np.isin(self.alone_ids, sensors) | np.isin(self.alone_ids, subjects[counts > 1])
+        if promote.any():
+            self.components += _singletons(VEHICLE, self.alone_ids[promote],
+                                                self.alone.take(promote), self.dims)
+            self.alone_ids, self.alone = self.alone_ids[~promote], self.alone.take(~promote)
+            self._lookup = None
+        comp_v, _ = self._locate(VEHICLE, sensors)
+        comp_f, _ = self._locate(FEATURE, features)
+        links = np.unique(np.stack([comp_v, comp_f], axis=1)[comp_v != comp_f], axis=0)
+        if not links.size:
+            return  # the usual step: every row inside a component
+        parent = list(range(len(self.components)))  # union–find over the components
+
+        def root(i: int) -> int:
+            while parent[i] != i:
+                parent[i] = i = parent[parent[i]]
+            return i
+
+        for u, v in links.tolist():
+            ru, rv = root(u), root(v)
+            parent[max(ru, rv)] = min(ru, rv)
+        groups: dict[int, list[Component]] = {}
+        for i, c in enumerate(self.components):
+            groups.setdefault(root(i), []).append(c)
+        self._lookup = None
+        self.components = [parts[0] if len(parts) == 1 else _merge(parts, self.dims)
+                           for parts in groups.values()]
+
+    # -- lookup -----------------------------------------------------------------------
+
+    def _table(self) -> tuple[IntArray, IntArray, IntArray]:
+        """Every entity's key (2 id + kind), component (−1: alone) and position, sorted by key
+        (kept until the membership changes: `_lookup = None`)."""
+        if self._lookup is None:
+            self._lookup = self._build_table()
+        return self._lookup
+
+    def _build_table(self) -> tuple[IntArray, IntArray, IntArray]:
+        keys = [self.alone_ids * 2 + VEHICLE] + [c.ids * 2 + c.kind for c in self.components]
+        comp = [np.full(self.alone_ids.size, -1)] + [np.full(c.ids.size, i)
+                                                    for i, c in enumerate(self.components)]
+        pos = [np.arange(self.alone_ids.size)] + [np.arange(c.ids.size) for c in self.components]
+        keys_all = np.concatenate(keys)
+        order = np.argsort(keys_all, kind="stable")
+        return keys_all[order], np.concatenate(comp)[order], np.concatenate(pos)[order]
+
+    def _locate(self, kind: int, ids: IntArray) -> tuple[IntArray, IntArray]:
+        """(component (−1: alone), position in it) of entities `ids` of `kind`."""
+        keys, comp, pos = self._table()
+        at = np.searchsorted(keys, ids * 2 + kind)
+        return comp[at], pos[at]
+
+    def _vehicle_means(self, ids: IntArray) -> FloatArray:
+        """(n, dx) current means of vehicles `ids`."""
+        dx = int(self.dims[VEHICLE])
+        comp, pos = self._locate(VEHICLE, ids)
+        means = np.empty((ids.size, dx))
+        alone = comp < 0
+        means[alone] = self.alone.mean[pos[alone]]
+        for i in np.flatnonzero(~alone):
+            c = self.components[comp[i]]
+            means[i] = c.mean[c.start[pos[i]]:c.start[pos[i]] + dx]
+        return means
+
+    # -- update ---------------------------------------------------------------------
+
+    def _update(self, frame: Frame, gnss_rows: IntArray, v2f_rows: IntArray,
+                origin: IntArray | None) -> tuple[float, int]:
+        """Update the alone vehicles in one batch and each component with its rows; (NIS, dof)."""
+        nis, dof = 0.0, 0
+        by_component: dict[int, list[_Rows]] = {}
+        if gnss_rows.size:
+            gnss = frame.batches["gnss"]
+            comp, pos = self._locate(VEHICLE, gnss.subject[gnss_rows])
+            z, R = gnss.z[gnss_rows], gnss.cov[gnss_rows]
+            alone = comp < 0
+            if alone.any():
+                nis, dof = self._update_alone(pos[alone], z[alone], R[alone])
+            self._group(by_component, comp, _Rows(z, R, ((pos, self.Hg, VEHICLE),)))
+        if v2f_rows.size:
+            v2f = frame.batches["v2f"]
+            features = origin[v2f_rows]
+            self.last_seen[np.searchsorted(self.feature_ids, features)] = frame.k
+            comp, pos_v = self._locate(VEHICLE, v2f.sensor[v2f_rows])
+            _, pos_f = self._locate(FEATURE, features)
+            terms = ((pos_f, self.Hf, FEATURE), (pos_v, -self.Hx, VEHICLE))          # z = H f − H x + w
+            self._group(by_component, comp, _Rows(v2f.z[v2f_rows], v2f.cov[v2f_rows], terms))
+        for i, groups in by_component.items():
+            n, d = self._update_component(self.components[i], groups)
+            nis, dof = nis + n, dof + d
+        return nis, dof
+
+    @staticmethod
+    def _group(by_component: dict[int, list[_Rows]], comp: IntArray, rows: _Rows) -> None:
+        """Add `rows` to the lists of their components (alone vehicles: comp −1, skipped)."""
+        order = np.argsort(comp, kind="stable")
+        labels, first = np.unique(comp[order], return_index=True)
+        for label, part in zip(labels.tolist(), np.split(order, first[1:]), strict=True):
+            if label >= 0:
+                by_component.setdefault(label, []).append(rows.take(part))
+
+    def _update_alone(self, pos: IntArray, z: FloatArray, R: FloatArray) -> tuple[float, int]:
+        """Joseph-form update of the alone vehicles at `pos`, one GNSS row each."""
+        post, nis = kf_update_nis(self.alone.take(pos), z, self.Hg, R)
+        mean, cov = self.alone.mean.copy(), self.alone.cov.copy()
+        mean[pos], cov[pos] = post.mean, post.cov
+        self.alone = Gaussians(mean, cov)
+        return float(nis.sum()), int(z.size)
+
+    def _update_component(self, c: Component, groups: list[_Rows]) -> tuple[float, int]:
+        """The information-form update of one component (module docstring, step 5)."""
+        J, a, nu_R_nu, E, dof = self._information(c, groups)
+        P = c.cov
+        r = E.size
+        if 2 * r > P.shape[0]:  # most coordinates observed: two inversions are cheaper
+            post = _inverse_update(P, E, J)
+            if post is not None and _blocks_positive_definite(post, c, self.dims):
+                PE = post[:, E]                                        # P E, posterior
+                c.mean = c.mean + PE @ a                               # θ = θ⁻ + P E a
+                c.cov = post
+                return nu_R_nu - float(a @ (PE[E] @ a)), dof           # Eᵀ P E = G (I + J G)⁻¹
+            return self._update_component_rows(c, groups)
+        PE = P[:, E]                                                   # P⁻ E   (D, r)
+        G = PE[E]                                                      # Eᵀ P⁻ E
+        X = np.linalg.solve(np.eye(r) + J @ G, np.column_stack([a, J]))
+        b, M = X[:, 0], symmetrize(X[:, 1:])                           # (I + J G)⁻¹ [a, J]
+        cov = symmetrize(P - (PE @ M) @ PE.T)                          # P = P⁻ − P⁻E M Eᵀ P⁻
+        if not _blocks_positive_definite(cov, c, self.dims):
+            return self._update_component_rows(c, groups)  # P⁻ ≫ R: round-off ate the posterior
+        c.mean = c.mean + PE @ b                                       # θ = θ⁻ + P⁻E b
+        c.cov = cov
+        return nu_R_nu - float((G @ a) @ b), dof
+
+    def _information(self, c: Component, groups: list[_Rows]
+                     ) -> tuple[FloatArray, FloatArray, float, IntArray, int]:
+        """(J, a, Σ νᵀR⁻¹ν, E, m) of the rows of one component on its observed coordinates."""
+        observed = np.unique(np.concatenate([e for g in groups for e, _, _ in g.terms]))
+        widths = np.array([c.size for c in self.observed_cols])
+        w = widths[c.kind[observed]]
+        at = np.full(c.ids.size, -1)
+        at[observed] = np.concatenate([[0], np.cumsum(w)[:-1]])          # start of each in y
+        r = int(w.sum())
+        E = np.empty(r, dtype=np.int64)
+        for kind, cols in enumerate(self.observed_cols):
+            entities = observed[c.kind[observed] == kind]
+            if entities.size:
+                E[(at[entities, None] + np.arange(cols.size)).ravel()] = (
+                    c.start[entities, None] + cols).ravel()
+        y = c.mean[E]
+        J_at, J_val, a_at, a_val = [], [], [], []
+        nu_R_nu, dof = 0.0, 0
+        for g in groups:
+            blocks = []
+            for e, H, kind in g.terms:
+                Hc = H[:, self.observed_cols[kind]]                              # H on y
+                blocks.append((at[e, None] + np.arange(Hc.shape[1]), Hc))        # (n, w) indices
+            nu = g.z - sum(np.einsum("ij,nj->ni", Hc, y[idx]) for idx, Hc in blocks)   # ν = z − H θ⁻
+            R_inv = np.linalg.solve(g.R, np.eye(g.z.shape[1]))                  # R⁻¹ (information)
+            R_nu = np.einsum("nij,nj->ni", R_inv, nu)                           # R⁻¹ ν
+            nu_R_nu += float(np.sum(nu * R_nu))
+            dof += nu.size
+            for idx_t, H_t in blocks:
+                a_at.append(idx_t.ravel())
+                a_val.append(np.einsum("it,ni->nt", H_t, R_nu).ravel())         # Hᵀ R⁻¹ ν
+                R_H = R_inv @ H_t                                                   # R⁻¹ H_t
+                for idx_u, H_u in blocks:
+                    J_at.append((idx_u[:, :, None] * r + idx_t[:, None, :]).ravel())
+                    J_val.append(np.einsum("iu,nit->nut", H_u, R_H).ravel())    # H_uᵀ R⁻¹ H_t
+        J = np.bincount(np.concatenate(J_at), np.concatenate(J_val), minlength=r * r).reshape(r, r)
+        a = np.bincount(np.concatenate(a_at), np.concatenate(a_val), minlength=r)
+        return J, a, nu_R_nu, E, dof
+
+    def _update_component_rows(self, c: Component, groups: list[_Rows]) -> tuple[float, int]:
+        """The dense form's update of one component: every row stacked, `kf_update_nis`."""
+        D = c.mean.size
+        H_rows, z_rows, R_blocks = [], [], []
+        for g in groups:
+            n, dz = g.z.shape
+            H = np.zeros((n, dz, D))
+            for e, H_t, _ in g.terms:
+                cols = c.start[e, None] + np.arange(H_t.shape[1])                 # (n, d)
+                H[np.arange(n)[:, None, None], np.arange(dz)[None, :, None], cols[:, None, :]] = H_t
+            H_rows.append(H.reshape(-1, D))
+            z_rows.append(g.z.ravel())
+            R_blocks.append(g.R)
+        z = np.concatenate(z_rows)
+        post, nis = kf_update_nis(Gaussians(c.mean[None], c.cov[None]), z[None],
+                                  np.concatenate(H_rows), block_diagonal(*R_blocks))
+        c.mean, c.cov = post.mean[0], post.cov[0]
+        return float(nis[0]), z.size
+
+    # -- estimate -------------------------------------------------------------------
+
+    def _estimate(self, nis: tuple[float, int]) -> Estimate:
+        parts: list[list[tuple[IntArray, FloatArray, FloatArray]]] = [[], []]
+        parts[VEHICLE].append((self.alone_ids, self.alone.mean, self.alone.cov))
+        for c in self.components:
+            for kind in (VEHICLE, FEATURE):
+                entities = np.flatnonzero(c.kind == kind)
+                if entities.size:
+                    idx = c.indices(entities, int(self.dims[kind]))
+                    cov = c.cov[idx[:, :, None], idx[:, None, :]]
+                    parts[kind].append((c.ids[entities], c.mean[idx], cov))
+        states = []
+        for kind, label in ((VEHICLE, "vehicle"), (FEATURE, "feature")):
+            d = int(self.dims[kind])
+            ids = np.concatenate([p[0] for p in parts[kind]] + [np.zeros(0, np.int64)])
+            mean = np.concatenate([p[1] for p in parts[kind]] + [np.zeros((0, d))])
+            cov = np.concatenate([p[2] for p in parts[kind]] + [np.zeros((0, d, d))])
+            order = np.argsort(ids, kind="stable")
+            states.append(checked_states(self.name, label, ids[order], mean[order], cov[order]))
+        features = states[FEATURE] if self.dims[FEATURE] else None
+        state_dim = self.alone.mean.size + sum(c.mean.size for c in self.components)
+        return Estimate(states[VEHICLE], features, {"state_dim": int(state_dim), "nis": nis})
