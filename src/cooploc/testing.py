@@ -439,7 +439,8 @@ def long_run(cls: type, seed: int, n_steps: int = LONG_RUN_STEPS) -> tuple[Recor
     keys = set(preset.params.keys())
     if "n_steps" not in keys:
         raise CheckSkipped(f"preset {preset.name!r} has no parameter 'n_steps'")
-    wanted = {"n_steps": n_steps, "n_vehicles": 2 + int(getattr(preset.params, "n_anchors", 0)),
+    wanted = {**dict(getattr(cls, "contract_overrides", ())), "n_steps": n_steps,
+              "n_vehicles": 2 + int(getattr(preset.params, "n_anchors", 0)),
               "n_features": 1, "gnss_variances": (15.0,)}
     rec = _recording(preset.name, seed, tuple(sorted((k, v) for k, v in wanted.items() if k in keys)))
     params = cls.Params()
