@@ -1,4 +1,5 @@
-"""Tests of the Gulati scenario, the Kalman baseline with odometry and `reproduce gulati`.
+"""Tests of the Gulati scenario and the Kalman baseline with odometry (`reproduce gulati --quick`:
+tests/test_quick_modes.py).
 
 - The scenario simulates exactly the sensors of §IV-A (noise covariances checked by
   sampling, radar rows equal to the true positions in the unknown radar frame).
@@ -10,8 +11,6 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
@@ -19,7 +18,6 @@ from cooploc.errors import ConfigError
 from cooploc.estimators import make_estimator
 from cooploc.geometry import to_local
 from cooploc.motion import ConstantVelocity
-from cooploc.reproduce import ReproduceOptions, get_experiment
 from cooploc.scenarios import get_preset
 from cooploc.scenarios.gulati import RADAR_ID, GulatiParams, generate
 
@@ -219,26 +217,3 @@ def test_long_run_stays_bounded(seed: int) -> None:
         err = np.array([np.abs(e.vehicles.mean[:, :2] - s[:, :2]).max()
                         for e, s in zip(out, rec.truth.vehicle_states, strict=True)])
         assert err[500:].max() < 20.0  # 20 m ≈ 10 σ of the worst per-axis error
-
-
-# ----------------------------------------------------------------------------
-# reproduce
-# ----------------------------------------------------------------------------
-
-
-def test_reproduce_quick(tmp_path) -> None:
-    out = get_experiment("gulati").run(ReproduceOptions(tmp_path, quick=True, backend="serial"))
-    data = json.loads((out / "data.json").read_text())
-    for n in ("2", "3", "4"):
-        row = data["table"][n]
-        assert set(row) == {"fg-topology-new", "fg-topology-old", "gnss-kf", "fg-isam2"}
-        for value in row.values():
-            assert np.isfinite(value["total_rmse"]) and value["seconds_per_run"] > 0
-            # eq. 21 sums over vehicles: total² = N × per-vehicle² (every vehicle present)
-            np.testing.assert_allclose(np.mean(np.square(value["per_run_total_rmse"])),
-                                       int(n) * value["vehicle_rmse_all"] ** 2, rtol=1e-9)
-    report = (out / "report.md").read_text()
-    assert "5.211" in report and "0.153" in report  # the paper's numbers beside ours
-    for fig in ("fig3_trajectories_2v", "fig4_rmse_per_step_2v", "fig5_trajectories_4v",
-                "fig6_rmse_per_step_4v"):
-        assert (out / f"{fig}.png").stat().st_size > 1000

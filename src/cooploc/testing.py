@@ -31,9 +31,11 @@ a short recording of the estimator's own `default_preset`:
 `check_estimator` stops at the first failure with an `AssertionError` that names the
 check; a check that cannot apply raises `CheckSkipped` inside and is reported as
 skipped. `run_check` runs one check (what cooploc's own test suite parametrises
-over). The recording surgery the checks use (`with_traffic`, `with_empty_frames`) and
-the assertions (`assert_valid_estimate`, `assert_spd`) are public, for tests of your
-own; `translated` moves a whole recording (e.g. to UTM magnitudes) for invariance tests.
+over); `on_preset(estimator, preset, overrides)` holds an estimator to the same checks
+on another scenario's recordings. The recording surgery the checks use (`with_traffic`,
+`with_empty_frames`) and the assertions (`assert_valid_estimate`, `assert_spd`) are
+public, for tests of your own; `translated` moves a whole recording (e.g. to UTM
+magnitudes) for invariance tests.
 """
 
 from __future__ import annotations
@@ -63,6 +65,7 @@ __all__ = [
     "assert_state_set",
     "assert_valid_estimate",
     "check_estimator",
+    "on_preset",
     "preset_recording",
     "run_check",
     "run_estimator",
@@ -331,9 +334,20 @@ def _recording(preset: str, seed: int, overrides: tuple[tuple[str, Any], ...]) -
     return preset_recording(preset, [seed, 50], dict(overrides))
 
 
+def on_preset(estimator: type | str, preset: str, overrides: Mapping[str, Any] | None = None) -> type:
+    """`estimator` whose contract recordings are runs of `preset` with `overrides` instead of
+    its `default_preset`: give it to `check_estimator` or `run_check` to hold the estimator
+    to the contract on another scenario (e.g. a short SUMO run). A subclass that changes
+    nothing else."""
+    cls = _estimator_class(estimator)
+    return type(cls.__name__, (cls,), {"default_preset": preset, "__module__": cls.__module__,
+                                       "contract_overrides": tuple(sorted((overrides or {}).items()))})
+
+
 def contract_recording(cls: type, seed: int, **overrides: Any) -> Recording:
-    """A short run of the estimator's default preset; `CheckSkipped` if an override does
-    not apply to it."""
+    """A short run of the estimator's default preset (or the one `on_preset` chose, with its
+    overrides); `CheckSkipped` if an override does not apply to it."""
+    overrides = {**dict(getattr(cls, "contract_overrides", ())), **overrides}
     preset = get_preset(cls.default_preset)
     keys = set(preset.params.keys())
     missing = sorted(set(overrides) - keys)
@@ -425,7 +439,8 @@ def long_run(cls: type, seed: int, n_steps: int = LONG_RUN_STEPS) -> tuple[Recor
     keys = set(preset.params.keys())
     if "n_steps" not in keys:
         raise CheckSkipped(f"preset {preset.name!r} has no parameter 'n_steps'")
-    wanted = {"n_steps": n_steps, "n_vehicles": 2 + int(getattr(preset.params, "n_anchors", 0)),
+    wanted = {**dict(getattr(cls, "contract_overrides", ())), "n_steps": n_steps,
+              "n_vehicles": 2 + int(getattr(preset.params, "n_anchors", 0)),
               "n_features": 1, "gnss_variances": (15.0,)}
     rec = _recording(preset.name, seed, tuple(sorted((k, v) for k, v in wanted.items() if k in keys)))
     params = cls.Params()

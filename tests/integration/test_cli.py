@@ -63,19 +63,3 @@ def test_unknown_scenario_and_paper():
     assert result.exit_code == 2 and "unknown scenario 'nowhere'" in result.output
     result = runner.invoke(app, ["reproduce", "nopaper"])
     assert result.exit_code == 2 and "unknown paper experiment 'nopaper'" in result.output
-
-
-def test_reproduce_quick(tmp_path):
-    out = tmp_path / "rep"
-    result = runner.invoke(app, ["reproduce", "froehle2018", "--quick", "--out", str(out),
-                                 "--backend", "serial", "--no-progress"])
-    assert result.exit_code == 0, result.output
-    for name in ("fig3_rmse_cdf.png", "fig4_rmse_vs_v2f_variance.png",
-                 "fig5_rmse_vs_features.png", "report.md", "data.json"):
-        assert (out / name).is_file(), name
-    report = (out / "report.md").read_text()
-    assert "3.5 m" in report and "2.53 m analytic" in report
-    data = json.loads((out / "data.json").read_text())
-    # Fig. 5 at K = 0: the joint filter without features is the GNSS-only filter
-    k0 = data["fig5"]["vehicle_rmse"]
-    assert k0["oracle-kf"]["1"][0] == pytest.approx(k0["gnss-kf"]["1"][0], rel=1e-9)
