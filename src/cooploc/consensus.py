@@ -186,7 +186,7 @@ def network_sum(network: Network, values: npt.ArrayLike, n_iterations: int,
 
 
 def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
-          priority: npt.ArrayLike) -> tuple[_Mask, np.ndarray, np.ndarray]:
+          priority: npt.ArrayLike, accept: _Mask | None = None) -> tuple[_Mask, np.ndarray, np.ndarray]:
     """Spread blocks to the agents that lack them (module doc).
 
     Parameters
@@ -194,6 +194,7 @@ def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
     have : (n, G) which agents hold block g; payload : (n, G, ...) their copies.
     n_rounds : forwarding rounds (blocks travel at most this many hops).
     priority : (n, G) integers ranking the copies; higher wins where copies meet.
+    accept : (n,) the agents that take copies (None: all); nothing is sent to the others.
 
     Returns
     -------
@@ -205,8 +206,10 @@ def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
     payload = np.array(payload, copy=True)
     priority = np.array(np.broadcast_to(priority, have.shape), dtype=np.int64, copy=True)
     fresh = have.copy()                                         # blocks to forward this round
+    into = (np.ones(network.n_edges, dtype=bool) if accept is None
+            else np.asarray(accept, dtype=bool)[network.target])   # edges into agents that take copies
     for _ in range(n_rounds if network.n_edges else 0):
-        edges, blocks = np.nonzero(fresh[network.source])        # every fresh block to every neighbour
+        edges, blocks = np.nonzero(fresh[network.source] & into[:, None])   # fresh blocks to each neighbour
         if edges.size == 0:
             break
         received = network.exchange_blocks(payload, edges, blocks)

@@ -217,7 +217,9 @@ class ICP:
         local = self.local.step(frame)                       # b_i^(0): prediction + GNSS (11)
         agents, prior = local.vehicles.ids, Gaussians(local.vehicles.mean, local.vehicles.cov)
         network = Network(agents, frame.links)
+        joined = ~np.isin(agents, self.features.agents)
         self._predict_tracks(agents)                         # (12), for association and BPA-L
+        self._hand_over(network, joined)
         v2f = frame.batches.get("v2f")
         info: dict = {}
         track = np.full(0 if v2f is None else len(v2f), -1, dtype=np.int64)
@@ -249,6 +251,23 @@ class ICP:
         predicted = kf_predict(belief, motion.transition_matrix(self.setup.dt), Q)
         self.features.Lam[known], self.features.eta[known] = to_information(predicted)
 
+    def _hand_over(self, network: Network, joined: np.ndarray) -> None:
+        """Agents that joined this step take their neighbours' copies of the tracks (one round).
+
+        They were not there when the last beliefs were flooded; without the copies, their
+        first detections could only start new features (`icp-da-lc`), which no other
+        vehicle's detections join. The highest-id neighbour's copy wins, as in the flood.
+        """
+        copies = self.features
+        if not joined.any() or not copies.ids.size or not network.n_edges:
+            return
+        n, F, d = copies.Lam.shape[0], copies.ids.size, self.d
+        payload = np.concatenate([copies.Lam.reshape(n, F, d * d), copies.eta], axis=2)
+        owner = np.broadcast_to(network.agents[:, None], (n, F))
+        have, payload, _ = flood(network, copies.known(), payload, 1, owner, accept=joined)
+        copies.Lam = np.where(have[..., None, None], payload[..., : d * d].reshape(n, F, d, d), 0.0)
+        copies.eta = np.where(have[..., None], payload[..., d * d:], 0.0)
+
     def _bpa_l(self, network: Network, agents: IntArray, prior: Gaussians, v2f: Batch | None,
                rows: IntArray, slot_ids: IntArray) -> tuple[Gaussians, int]:
         """BPA-L (19)–(22) until estimates settle; returns the vehicles' posterior and iterations."""
@@ -276,7 +295,7 @@ class ICP:
         feat_Lam, feat_eta = feat_Lam0, feat_eta0
         last_v, last_f = prior.mean, self._feature_means(feat_Lam, feat_eta)
         iterations = 0
-        for iterations in range(1, p.max_iterations + 1):  # noqa: B007 — reported below
+        for iterations in range(1, p.max_iterations + 1):
             # (19) vehicle → feature, from i's extrinsic belief
             B = Lam_v[agent] - to_vehicle[0]
             b = eta_v[agent] - to_vehicle[1]
@@ -290,6 +309,8 @@ class ICP:
             total = feature_groups.sum(payload)
             feat_Lam = feat_Lam0 + total[..., : d * d].reshape(n, F, d, d)
             feat_eta = feat_eta0 + total[..., d * d:]
+            if iterations == 1:
+                first_Lam = feat_Lam
             # (21) feature → vehicle, from the agent's copy of the feature's extrinsic belief
             A = _psd(feat_Lam[agent, slot] - to_feature[0])
             a = feat_eta[agent, slot] - to_feature[1]
@@ -306,7 +327,9 @@ class ICP:
             still = everyone.maximum(moved.astype(np.int64))
             if not still.any():
                 break
-        self._share_tracks(network, symmetrize(feat_Lam), feat_eta, senses)
+        shared = symmetrize(first_Lam)
+        mean = self._feature_means(feat_Lam, feat_eta)
+        self._share_tracks(network, shared, np.einsum("nfij,nfj->nfi", shared, mean), senses)
         return from_information(Lam_v, eta_v), iterations
 
     def _share_tracks(self, network: Network, Lam: FloatArray, eta: FloatArray, senses: np.ndarray) -> None:

@@ -123,7 +123,9 @@ class ICPDAPF(ICPDALC):
         local = self.local.step(frame)                              # b_i^(0), (11) / (23)
         agents, prior = local.vehicles.ids, Gaussians(local.vehicles.mean, local.vehicles.cov)
         network = Network(agents, frame.links)
+        joined = ~np.isin(agents, self.features.agents)
         self._predict_tracks(agents)                                # (12) / (24)
+        self._hand_over(network, joined)
         v2f = frame.batches.get("v2f")
         info: dict = {"v2f_track": np.full(0 if v2f is None else len(v2f), -1, dtype=np.int64),
                       "v2f_discarded": 0}
