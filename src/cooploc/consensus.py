@@ -43,6 +43,11 @@ group) pairs, learns the Metropolis weights (one round) and, for sums, the leade
 every group (max consensus, once), then serves any number of average / max / sum
 runs — a BP iteration per run — at O(N_cons P · payload) for P active pairs.
 
+A run stops early at a fixed point (a round in which every agent receives only what it
+holds): the remaining rounds would repeat it exactly, so the result is bitwise that of
+all N_cons rounds. The agents, who cannot see that every other agent is at the fixed
+point, still send those rounds, so they are counted (`Network.count`).
+
 All traffic goes through `Network.exchange_blocks`, so messages and bytes are counted.
 """
 
@@ -115,9 +120,12 @@ class GroupConsensus:
             return x.reshape(shape)
         w = self.weights()[:, None]
         n, G = self.members.shape
-        for _ in range(self.n_iterations):
+        for done in range(1, self.n_iterations + 1):
             received = self._exchange(x)                                              # (P, r)
             own = x.reshape(n * G, -1)[self.slot]
+            if np.array_equal(received, own):     # a fixed point: the other rounds change nothing
+                self._count_rounds(self.n_iterations - done, x.shape[2])
+                break
             x = x + (self._sum_into @ (w * (received - own))).reshape(x.shape)
         return x.reshape(shape)
 
@@ -129,9 +137,12 @@ class GroupConsensus:
         n, G = self.members.shape
         starts = np.r_[0, np.flatnonzero(np.diff(self.slot)) + 1]
         receivers = self.slot[starts]
-        for _ in range(self.n_iterations):
+        for done in range(1, self.n_iterations + 1):
             received = self._exchange(x)
             flat = x.reshape(n * G, -1)
+            if not (received > flat[self.slot]).any():   # a fixed point: the other rounds change nothing
+                self._count_rounds(self.n_iterations - done, x.shape[2])
+                break
             flat[receivers] = np.maximum(flat[receivers], np.maximum.reduceat(received, starts, axis=0))
             x = flat.reshape(x.shape)
         return x.reshape(shape)
@@ -150,6 +161,11 @@ class GroupConsensus:
         ok = (share > 1e-9) & self.members
         total = np.where(ok[..., None], averaged[..., :-1] / np.where(ok, share, 1.0)[..., None], x)
         return total.reshape(shape)
+
+    def _count_rounds(self, rounds: int, width: int) -> None:
+        """Count `rounds` rounds of `width` numbers per block that the agents send, but that
+        the simulation skips because they would change nothing (a fixed point was reached)."""
+        self.network.count(rounds * self._n_messages, rounds * self.edges.size * width)
 
     def _exchange(self, x: np.ndarray) -> np.ndarray:
         """One round over the active pairs: (n, G, r) → (P, r) received."""

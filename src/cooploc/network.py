@@ -101,6 +101,12 @@ class Network:
         self.bytes += int(edges.size) * int(np.prod(values.shape[2:], dtype=np.int64)) * 8
         return values[self.source[edges], blocks]
 
+    def count(self, messages: int, values: int) -> None:
+        """Count `messages` messages carrying `values` numbers in all that the simulation did
+        not deliver because they could change nothing (a consensus at its fixed point)."""
+        self.messages += int(messages)
+        self.bytes += int(values) * 8
+
     def components(self) -> IntArray:
         """(n,) label of the connected component of each agent (for tests and reports)."""
         from scipy import sparse
