@@ -228,7 +228,8 @@ def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
         edges, blocks = np.nonzero(fresh[network.source] & into[:, None])   # fresh blocks to each neighbour
         if edges.size == 0:
             break
-        received = network.exchange_blocks(payload, edges, blocks)
+        # edges come sorted (row-major nonzero): count the distinct ones without a sort
+        received = network.exchange_blocks(payload, edges, blocks, int(np.count_nonzero(np.diff(edges))) + 1)
         target = network.target[edges]
         rank = priority[network.source[edges], blocks]
         wanted = ~have[target, blocks] | (rank > priority[target, blocks])

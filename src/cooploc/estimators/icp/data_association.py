@@ -170,13 +170,16 @@ class ICPDALC(ICP):
         known = copies.known()                                     # (n, F) tracks each agent holds
         if not copies.ids.size or not index.shape[1]:
             return _Association(row_of, mask, known, None, np.ones(index.shape))
-        # (13): η(α = ℓ) = N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), Gaussian beliefs
-        tracks = from_information(np.where(known[..., None, None], copies.Lam, np.eye(self.d)),
-                                  np.where(known[..., None], copies.eta, 0.0))
-        z, R = v2f.z[row_of], v2f.cov[row_of]                      # (n, W, d), (n, W, d, d)
-        rel = tracks.mean - prior.mean[:, None, :]                 # (n, F, d)
-        S = R[:, None] + prior.cov[:, None, None] + tracks.cov[:, :, None]
-        log_l = gaussian_logpdf(z[:, None] - rel[:, :, None], S)   # (n, F, W)
+        # (13): η(α = ℓ) = N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), Gaussian beliefs, for the
+        # tracks each agent holds and its own rows only (the BPA-DA masks the rest)
+        ai, fk = np.nonzero(known)
+        tracks = from_information(copies.Lam[ai, fk], copies.eta[ai, fk])
+        pair, wi = np.nonzero(mask[ai])                             # (agent, track) pair × its rows
+        a, f, rows = ai[pair], fk[pair], row_of[ai[pair], wi]
+        rel = tracks.mean[pair] - prior.mean[a]
+        S = v2f.cov[rows] + prior.cov[a] + tracks.cov[pair]
+        log_l = np.full(known.shape + mask.shape[1:], -np.inf)     # (n, F, W)
+        log_l[a, f, wi] = gaussian_logpdf(v2f.z[rows] - rel, S)
         log_psi, log_missed, log_new = association_weights(log_l, p.detection_probability,
                                                            p.new_feature_intensity)
         marginals = bp_association(log_psi, log_missed, log_new, p.da_iterations,       # (14)–(17)

@@ -36,8 +36,12 @@ its neighbours send it through a `Network` (`cooploc.network`):
    The loop stops when no vehicle or feature estimate moved by more than 10 cm and
    0.1 m/s (paper §V-A) — each agent checks its own estimates and the agents agree by
    max consensus — or after `max_iterations`.
-4. Every agent gets the new belief of every feature sensed this step (flooding); the
-   refined b_i is reported.
+4. The agents within `share_hops` hops of those that sensed a feature get its new
+   belief (flooding; one hop by default: every vehicle that can sense it at the next
+   step, when R_c ≥ 2 R_s + v T_s, so that the traffic is local, not links × all
+   features); the refined b_i is reported. The shared belief keeps the final mean with
+   the covariance of the first BPA-L iteration (see "Shared tracks" below). A vehicle
+   that joins takes its neighbours' copies before associating (one round).
 
 What runs by default, and the paper's recursion. The paper's prediction (11)–(12)
 starts step t from the refined beliefs b^(N) of step t−1. By default (`feedback =
@@ -53,6 +57,14 @@ them):
 - `feature_memory = True`: the predicted copy (12) is the feature prior b_k^(0) of (20)
   instead of the uniform one.
 Why they are off (the same information counted again at every step): docs/icp.md.
+
+Shared tracks. The BPA-L runs on a loopy graph (vehicles and features), so after a few
+iterations its feature beliefs count the same GNSS fixes many times and are far too
+confident (on sumo-grid-tlr: claimed 0.17 m, error 1.3 m). The association (13) of the
+next step would then reject the right track and start a duplicate. The belief of the
+first iteration is the product of messages computed from the vehicles' independent
+priors, so it counts each fix once: its covariance goes with the final mean into the
+shared copy.
 
 The reported feature estimate of each feature is the copy of the agent that holds
 the most information about it (`info["feature_source"]`).
@@ -105,6 +117,11 @@ class ICPParams(Params):
         filter, and the refined belief is only reported. True: the refined belief
         replaces the filter's, so that the next prediction (11) starts from it, as in
         the paper. Why both are off by default: docs/icp.md.
+    share_hops : rounds of flooding that spread each feature's new belief from the
+        vehicles that sensed it (step 4). 1 reaches their neighbours, which is every
+        vehicle that can sense the feature at the next step when R_c ≥ 2 R_s + v T_s;
+        more rounds carry every belief further across the network (N_cons rounds reach
+        a whole city, at a cost that grows with links × features).
     """
 
     consensus_iterations: int = param(20, ge=0)
@@ -113,6 +130,7 @@ class ICPParams(Params):
     velocity_tolerance: float = param(0.1, gt=0)
     feature_memory: bool = False
     feedback: bool = False
+    share_hops: int = param(1, ge=1)
 
 
 def relative_message(A: FloatArray, a: FloatArray, z: FloatArray, R: FloatArray
@@ -333,18 +351,18 @@ class ICP:
         return from_information(Lam_v, eta_v), iterations
 
     def _share_tracks(self, network: Network, Lam: FloatArray, eta: FloatArray, senses: np.ndarray) -> None:
-        """Every agent gets the new belief of every feature sensed this step; the rest are reset.
+        """The agents near a feature sensed this step get its new belief; the rest are reset.
 
         The members of a feature's group hold its consensus belief; it is flooded
-        (`consensus.flood`, N_cons rounds, the highest-id member's copy wins) to the other
-        agents, who need it to associate their detections later. A feature that nobody
-        in an agent's reach sensed is reset to uniform there (paper §IV-B): its column
-        is dropped once no agent holds it.
+        (`consensus.flood`, `share_hops` rounds, the highest-id member's copy wins) to the
+        agents around, who need it to associate their detections later. A feature that
+        nobody in an agent's reach sensed is reset to uniform there (paper §IV-B): its
+        column is dropped once no agent holds it.
         """
         n, F, d = Lam.shape[0], Lam.shape[1], self.d
         payload = np.concatenate([Lam.reshape(n, F, d * d), eta], axis=2)
         owner = np.broadcast_to(network.agents[:, None], (n, F))
-        have, payload, _ = flood(network, senses, payload, self.params.consensus_iterations, owner)
+        have, payload, _ = flood(network, senses, payload, self.params.share_hops, owner)
         self.features.Lam = np.where(have[..., None, None], payload[..., : d * d].reshape(n, F, d, d), 0.0)
         self.features.eta = np.where(have[..., None], payload[..., d * d:], 0.0)
         keep = have.any(axis=0)
