@@ -87,18 +87,36 @@ class GroupConsensus:
                 f"consensus members must have one row per agent ({n}), got shape {self.members.shape}"
             )
         G = self.members.shape[1]
-        on = self.members[network.target] & self.members[network.source]          # (E, G)
-        self.edges, self.blocks = np.nonzero(on)                                    # active pairs
+        # the runs work on the members' blocks only, (M, r) in (agent, group) order
+        self._member_slots = np.flatnonzero(self.members.reshape(-1))
+        self.edges, self.blocks = self._active_pairs(G)
         self.slot = network.target[self.edges] * G + self.blocks                    # receiver (agent, group)
         order = np.argsort(self.slot, kind="stable")
         self.edges, self.blocks, self.slot = self.edges[order], self.blocks[order], self.slot[order]
-        P = self.edges.size
+        self._to = np.searchsorted(self._member_slots, self.slot)                  # receiver's block
+        self._from = np.searchsorted(self._member_slots, network.source[self.edges] * G + self.blocks)
+        P, M = self.edges.size, self._member_slots.size
         self._n_messages = int(np.unique(self.edges).size)
         from scipy import sparse  # here, not at import: `cooploc list` must not load SciPy
 
-        self._sum_into = sparse.csr_matrix((np.ones(P), (self.slot, np.arange(P))), shape=(n * G, P))
+        self._sum_into = sparse.csr_matrix((np.ones(P), (self._to, np.arange(P))), shape=(M, P))
         self._weights: FloatArray | None = None
         self._leader: np.ndarray | None = None
+
+    def _active_pairs(self, G: int) -> tuple[np.ndarray, np.ndarray]:
+        """(edge, group) pairs whose two ends are members, edge-major then by group — without
+        the (E, G) mask: each edge is tried against its target's groups only."""
+        net, slots = self.network, self._member_slots
+        agent_of, group_of = slots // G, slots % G
+        first = np.searchsorted(agent_of, np.arange(net.n_agents + 1))          # each agent's groups
+        count = np.diff(first)[net.target]
+        edge = np.repeat(np.arange(net.n_edges), count)
+        offset = np.arange(edge.size) - np.repeat(np.cumsum(count) - count, count)
+        group = group_of[first[net.target[edge]] + offset]
+        key = net.source[edge] * G + group
+        found = np.minimum(np.searchsorted(slots, key), max(slots.size - 1, 0))
+        both = slots[found] == key if slots.size else np.zeros(0, dtype=bool)
+        return edge[both], group[both]
 
     @property
     def active(self) -> bool:
@@ -107,10 +125,9 @@ class GroupConsensus:
     def weights(self) -> FloatArray:
         """(P,) Metropolis–Hastings weight of each active pair, from one round of degree exchange."""
         if self._weights is None:
-            n, G = self.members.shape
-            degree = np.bincount(self.slot, minlength=n * G).astype(float).reshape(n, G)
+            degree = np.bincount(self._to, minlength=self._member_slots.size).astype(float)
             received = self._exchange(degree)                                          # d_j
-            self._weights = 1.0 / (1.0 + np.maximum(degree.reshape(-1)[self.slot], received))
+            self._weights = 1.0 / (1.0 + np.maximum(degree[self._to], received))
         return self._weights
 
     def average(self, values: npt.ArrayLike) -> FloatArray:
@@ -119,14 +136,16 @@ class GroupConsensus:
         if not self.active:
             return x.reshape(shape)
         w = self.weights()[:, None]
-        n, G = self.members.shape
+        flat = x.reshape(-1, x.shape[2])
+        mine = flat[self._member_slots]                                               # (M, r)
         for done in range(1, self.n_iterations + 1):
-            received = self._exchange(x)                                              # (P, r)
-            own = x.reshape(n * G, -1)[self.slot]
+            received = self._exchange(mine)                                           # (P, r)
+            own = mine[self._to]
             if np.array_equal(received, own):     # a fixed point: the other rounds change nothing
                 self._count_rounds(self.n_iterations - done, x.shape[2])
                 break
-            x = x + (self._sum_into @ (w * (received - own))).reshape(x.shape)
+            mine = mine + self._sum_into @ (w * (received - own))
+        flat[self._member_slots] = mine
         return x.reshape(shape)
 
     def maximum(self, values: npt.ArrayLike) -> np.ndarray:
@@ -134,17 +153,17 @@ class GroupConsensus:
         x, shape = self._as_blocks(np.array(values))
         if not self.active:
             return x.reshape(shape)
-        n, G = self.members.shape
-        starts = np.r_[0, np.flatnonzero(np.diff(self.slot)) + 1]
-        receivers = self.slot[starts]
+        flat = x.reshape(-1, x.shape[2])
+        mine = flat[self._member_slots]
+        starts = np.r_[0, np.flatnonzero(np.diff(self._to)) + 1]
+        receivers = self._to[starts]
         for done in range(1, self.n_iterations + 1):
-            received = self._exchange(x)
-            flat = x.reshape(n * G, -1)
-            if not (received > flat[self.slot]).any():   # a fixed point: the other rounds change nothing
+            received = self._exchange(mine)
+            if not (received > mine[self._to]).any():   # a fixed point: the other rounds change nothing
                 self._count_rounds(self.n_iterations - done, x.shape[2])
                 break
-            flat[receivers] = np.maximum(flat[receivers], np.maximum.reduceat(received, starts, axis=0))
-            x = flat.reshape(x.shape)
+            mine[receivers] = np.maximum(mine[receivers], np.maximum.reduceat(received, starts, axis=0))
+        flat[self._member_slots] = mine
         return x.reshape(shape)
 
     def sum(self, values: npt.ArrayLike) -> FloatArray:
@@ -167,9 +186,9 @@ class GroupConsensus:
         the simulation skips because they would change nothing (a fixed point was reached)."""
         self.network.count(rounds * self._n_messages, rounds * self.edges.size * width)
 
-    def _exchange(self, x: np.ndarray) -> np.ndarray:
-        """One round over the active pairs: (n, G, r) → (P, r) received."""
-        return self.network.exchange_blocks(x, self.edges, self.blocks, self._n_messages)
+    def _exchange(self, mine: np.ndarray) -> np.ndarray:
+        """One round over the active pairs: the members' blocks (M, ...) → (P, ...) received."""
+        return self.network.deliver(mine, self._from, self._n_messages)
 
     def _as_blocks(self, values: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
         n, G = self.members.shape
