@@ -60,8 +60,8 @@ Why they are off (the same information counted again at every step): docs/icp.md
 
 Shared tracks. The BPA-L runs on a loopy graph (vehicles and features), so after a few
 iterations its feature beliefs count the same GNSS fixes many times and are far too
-confident (on sumo-grid-tlr: claimed 0.17 m, error 1.3 m). The association (13) of the
-next step would then reject the right track and start a duplicate. The belief of the
+confident; the association (13) of the next step would then reject the right track and
+start a duplicate (measurements: docs/icp.md). The belief of the
 first iteration is the product of messages computed from the vehicles' independent
 priors, so it counts each fix once: its covariance goes with the final mean into the
 shared copy.
@@ -70,13 +70,13 @@ The reported feature estimate of each feature is the copy of the agent that hold
 the most information about it (`info["feature_source"]`).
 
 The association's vehicle beliefs (`icp-da-lc`). The paper's (13) uses the predicted
-refined belief b_i of (11). Its mean is what the association needs (on sumo-grid-tlr a
-vehicle's GNSS-only mean is off by up to tens of metres in zone C, and its detections
-are then paired, consistently shifted, with the neighbouring poles); its covariance,
-from the loopy BPA-L, is over-confident. So the association uses the mean of a second
-filter that predicts the refined mean and updates it with GNSS, with the covariance
-of the GNSS-only filter (the same gains: a Kalman filter's covariances do not depend
-on its means). The BPA-L itself still starts from the GNSS-only b_i^(0).
+refined belief b_i of (11). Its mean is what the association needs (a GNSS-only mean
+far off pairs all of a vehicle's detections, consistently shifted, with neighbouring
+features); its covariance, from the loopy BPA-L, is over-confident. So the association
+uses the mean of a second filter that predicts the refined mean and updates it with
+GNSS, with the covariance of the GNSS-only filter (the same gains: a Kalman filter's
+covariances do not depend on its means). The BPA-L itself still starts from the
+GNSS-only b_i^(0).
 
 Choices the paper leaves open: N_cons (default 20 rounds), the maximum number of
 BPA-L iterations (default 10), and how an agent learns the number of vehicles the
