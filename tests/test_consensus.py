@@ -225,3 +225,21 @@ def test_runs_equal_the_weight_matrix_iteration(seed: int, n: int, extra: int, r
     before = net.counters()["messages"]
     consensus.average(np.ones((n, 2)))                     # at its fixed point from the start
     assert net.counters()["messages"] - before == rounds * net.n_edges
+
+
+def test_member_runs_equal_the_grouped_runs_bitwise(rng: np.random.Generator) -> None:
+    """The (M, r) runs on the members' blocks give, bitwise, the members' blocks of the
+    (n, G, r) runs, and the non-members keep their values there."""
+    n, G = 9, 4
+    net = Network(np.arange(n) * 5, np.arange(n)[_random_connected(rng, n, 8)] * 5)
+    members = rng.random((n, G)) < 0.6
+    values = rng.normal(size=(n, G, 3))
+    grouped = GroupConsensus(net, members, 6)
+    ai, gi = np.nonzero(members)
+    rows = grouped.member_index(ai, gi)
+    assert rows.tolist() == list(range(ai.size))
+    for dense, compact in ((grouped.sum, grouped.sum_members), (grouped.average, grouped.average_members),
+                           (grouped.maximum, grouped.maximum_members)):
+        full = dense(values)
+        np.testing.assert_array_equal(full[ai, gi], compact(values[ai, gi]))
+        np.testing.assert_array_equal(full[~members], values[~members])

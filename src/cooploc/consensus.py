@@ -58,7 +58,7 @@ import numpy.typing as npt
 
 from cooploc.errors import InvalidInputError
 from cooploc.network import Network
-from cooploc.types import FloatArray
+from cooploc.types import FloatArray, IntArray
 
 __all__ = ["GroupConsensus", "average_consensus", "flood", "max_consensus", "network_sum"]
 
@@ -132,54 +132,73 @@ class GroupConsensus:
 
     def average(self, values: npt.ArrayLike) -> FloatArray:
         """Mean of `values` ((n, ...) or grouped (n, G, ...)) over each agent's group component."""
-        x, shape = self._as_blocks(np.array(values, dtype=float))
+        return self._on_members(self.average_members, np.array(values, dtype=float))
+
+    def maximum(self, values: npt.ArrayLike) -> np.ndarray:
+        """Running maximum of `values` over each agent's group (exact after diameter rounds)."""
+        return self._on_members(self.maximum_members, np.array(values))
+
+    def sum(self, values: npt.ArrayLike) -> FloatArray:
+        """Σ of `values` over each agent's group component (leader-ratio consensus, module doc)."""
+        return self._on_members(self.sum_members, np.array(values, dtype=float))
+
+    def member_index(self, agents: IntArray, groups: IntArray) -> IntArray:
+        """Row of (agent index, group) in the members' blocks (M, ...) of the `*_members` runs."""
+        return np.searchsorted(self._member_slots, agents * self.members.shape[1] + groups)
+
+    def average_members(self, mine: FloatArray) -> FloatArray:
+        """`average` on the members' blocks only: (M, r) in (agent, group) order → (M, r)."""
+        mine = np.array(mine, dtype=float)
         if not self.active:
-            return x.reshape(shape)
+            return mine
         w = self.weights()[:, None]
-        flat = x.reshape(-1, x.shape[2])
-        mine = flat[self._member_slots]                                               # (M, r)
         for done in range(1, self.n_iterations + 1):
             received = self._exchange(mine)                                           # (P, r)
             own = mine[self._to]
             if np.array_equal(received, own):     # a fixed point: the other rounds change nothing
-                self._count_rounds(self.n_iterations - done, x.shape[2])
+                self._count_rounds(self.n_iterations - done, mine.shape[1])
                 break
             mine = mine + self._sum_into @ (w * (received - own))
-        flat[self._member_slots] = mine
-        return x.reshape(shape)
+        return mine
 
-    def maximum(self, values: npt.ArrayLike) -> np.ndarray:
-        """Running maximum of `values` over each agent's group (exact after diameter rounds)."""
-        x, shape = self._as_blocks(np.array(values))
+    def maximum_members(self, mine: np.ndarray) -> np.ndarray:
+        """`maximum` on the members' blocks only: (M, r) → (M, r)."""
+        mine = np.array(mine)
         if not self.active:
-            return x.reshape(shape)
-        flat = x.reshape(-1, x.shape[2])
-        mine = flat[self._member_slots]
+            return mine
         starts = np.r_[0, np.flatnonzero(np.diff(self._to)) + 1]
         receivers = self._to[starts]
         for done in range(1, self.n_iterations + 1):
             received = self._exchange(mine)
             if not (received > mine[self._to]).any():   # a fixed point: the other rounds change nothing
-                self._count_rounds(self.n_iterations - done, x.shape[2])
+                self._count_rounds(self.n_iterations - done, mine.shape[1])
                 break
             mine[receivers] = np.maximum(mine[receivers], np.maximum.reduceat(received, starts, axis=0))
-        flat[self._member_slots] = mine
-        return x.reshape(shape)
+        return mine
 
-    def sum(self, values: npt.ArrayLike) -> FloatArray:
-        """Σ of `values` over each agent's group component (leader-ratio consensus, module doc)."""
-        x, shape = self._as_blocks(np.asarray(values, dtype=float))
+    def sum_members(self, mine: FloatArray) -> FloatArray:
+        """`sum` on the members' blocks only: (M, r) → (M, r)."""
+        mine = np.asarray(mine, dtype=float)
         if not self.active:
-            return x.reshape(shape).copy()
+            return mine.copy()
+        ids = self.network.agents[self._member_slots // self.members.shape[1]]
         if self._leader is None:
-            ids = np.where(self.members, self.network.agents[:, None], np.iinfo(np.int64).min)
-            self._leader = self.maximum(ids[..., None])[..., 0]
-        is_leader = (self.members & (self._leader == self.network.agents[:, None])).astype(float)
-        averaged = self.average(np.concatenate([x, is_leader[..., None]], axis=2))
-        share = averaged[..., -1]
-        ok = (share > 1e-9) & self.members
-        total = np.where(ok[..., None], averaged[..., :-1] / np.where(ok, share, 1.0)[..., None], x)
-        return total.reshape(shape)
+            self._leader = self.maximum_members(ids[:, None])[:, 0]
+        is_leader = (self._leader == ids).astype(float)
+        averaged = self.average_members(np.concatenate([mine, is_leader[:, None]], axis=1))
+        share = averaged[:, -1]
+        ok = share > 1e-9
+        return np.where(ok[:, None], averaged[:, :-1] / np.where(ok, share, 1.0)[:, None], mine)
+
+    def _on_members(self, run, values: np.ndarray) -> np.ndarray:
+        """Apply a `*_members` run to the members' blocks of (n, [G,] ...) values; the
+        other blocks keep their values."""
+        x, shape = self._as_blocks(values)
+        if not self.active:
+            return x.reshape(shape)
+        flat = x.reshape(-1, x.shape[2])
+        flat[self._member_slots] = run(flat[self._member_slots])
+        return x.reshape(shape)
 
     def _count_rounds(self, rounds: int, width: int) -> None:
         """Count `rounds` rounds of `width` numbers per block that the agents send, but that

@@ -311,10 +311,6 @@ class ICP:
         p = self.params
         n, F, d = agents.size, self.features.ids.size, self.d
         Lam0, eta0 = to_information(prior)                               # b_i^(0)
-        if p.feature_memory:                                              # b_k^(0), eq. (12)
-            feat_Lam0, feat_eta0 = self.features.Lam.copy(), self.features.eta.copy()
-        else:                                                             # uniform (module doc)
-            feat_Lam0, feat_eta0 = np.zeros((n, F, d, d)), np.zeros((n, F, d))
         agent = np.searchsorted(agents, v2f.sensor[rows])
         slot = np.searchsorted(self.features.ids, slot_ids[rows])
         z, R = v2f.z[rows], v2f.cov[rows]
@@ -322,6 +318,14 @@ class ICP:
         senses[agent, slot] = True
         feature_groups = GroupConsensus(network, senses, p.consensus_iterations)
         everyone = GroupConsensus(network, None, p.consensus_iterations)
+        # only the copies of the agents sensing a feature change: they are kept as rows
+        # (agent, feature) of the members' blocks, M of them, not as (n, F) arrays
+        ma, mf = np.nonzero(senses)
+        member = feature_groups.member_index(agent, slot)               # each row's copy
+        if p.feature_memory:                                              # b_k^(0), eq. (12)
+            feat_Lam0, feat_eta0 = self.features.Lam[ma, mf], self.features.eta[ma, mf]
+        else:                                                             # uniform (module doc)
+            feat_Lam0, feat_eta0 = np.zeros((ma.size, d, d)), np.zeros((ma.size, d))
         m = rows.size
         to_vehicle = (np.zeros((m, d, d)), np.zeros((m, d)))            # m_{k→i}, uniform at n = 0
         Lam_v, eta_v = Lam0, eta0
@@ -334,19 +338,18 @@ class ICP:
             b = eta_v[agent] - to_vehicle[1]
             to_feature = relative_message(B, b, z, R)
             # (20) Σ_i over the vehicles sensing k, by consensus at every agent
-            local_Lam = np.zeros((n, F, d, d))
-            local_eta = np.zeros((n, F, d))
-            np.add.at(local_Lam, (agent, slot), to_feature[0])
-            np.add.at(local_eta, (agent, slot), to_feature[1])
-            payload = np.concatenate([local_Lam.reshape(n, F, -1), local_eta], axis=2)
-            total = feature_groups.sum(payload)
-            feat_Lam = feat_Lam0 + total[..., : d * d].reshape(n, F, d, d)
-            feat_eta = feat_eta0 + total[..., d * d:]
+            local_Lam = np.zeros((ma.size, d, d))
+            local_eta = np.zeros((ma.size, d))
+            np.add.at(local_Lam, member, to_feature[0])
+            np.add.at(local_eta, member, to_feature[1])
+            total = feature_groups.sum_members(np.concatenate([local_Lam.reshape(-1, d * d), local_eta], 1))
+            feat_Lam = feat_Lam0 + total[:, : d * d].reshape(-1, d, d)
+            feat_eta = feat_eta0 + total[:, d * d:]
             if iterations == 1:
                 first_Lam = feat_Lam
             # (21) feature → vehicle, from the agent's copy of the feature's extrinsic belief
-            A = _psd(feat_Lam[agent, slot] - to_feature[0])
-            a = feat_eta[agent, slot] - to_feature[1]
+            A = _psd(feat_Lam[member] - to_feature[0])
+            a = feat_eta[member] - to_feature[1]
             to_vehicle = relative_message(A, a, -z, R)
             # (22) b_i = b_i^(0) Π_k m_{k→i}
             Lam_v = Lam0.copy()
@@ -355,14 +358,17 @@ class ICP:
             np.add.at(eta_v, agent, to_vehicle[1])
             now_v = np.linalg.solve(Lam_v, eta_v[..., None])[..., 0]
             now_f = self._feature_means(feat_Lam, feat_eta)
-            moved = np.maximum(self._moved(now_v, last_v), self._moved(now_f, last_f).max(axis=1, initial=0))
+            moved = self._moved(now_v, last_v)
+            np.logical_or.at(moved, ma, self._moved(now_f, last_f))    # an agent's copies moved
             last_v, last_f = now_v, now_f
             still = everyone.maximum(moved.astype(np.int64))
             if not still.any():
                 break
-        shared = symmetrize(first_Lam)
-        mean = self._feature_means(feat_Lam, feat_eta)
-        self._share_tracks(network, shared, np.einsum("nfij,nfj->nfi", shared, mean), senses)
+        Lam = np.zeros((n, F, d, d))
+        eta = np.zeros((n, F, d))
+        Lam[ma, mf] = symmetrize(first_Lam)
+        eta[ma, mf] = np.einsum("mij,mj->mi", Lam[ma, mf], self._feature_means(feat_Lam, feat_eta))
+        self._share_tracks(network, Lam, eta, senses)
         return from_information(Lam_v, eta_v), iterations
 
     def _share_tracks(self, network: Network, Lam: FloatArray, eta: FloatArray, senses: np.ndarray) -> None:
