@@ -253,15 +253,3 @@ def test_a_vehicle_that_joins_takes_its_neighbours_tracks() -> None:
     mine = estimate.info["v2f_track"][v2f.sensor == joiner]
     # its rows went to the tracks the other vehicle already held, not to new features
     assert mine.size == 2 and np.isin(mine, before).all()
-
-
-def test_association_uses_refined_means_with_gnss_only_covariances() -> None:
-    rec = preset_recording("brambilla-crossroad", [4, 2], {"n_steps": 6, "n_features": 8})
-    est = make_estimator("icp-da-lc", rec.setup, None, np.random.default_rng(0))
-    gnss = make_estimator("gnss-kf", rec.setup, None, np.random.default_rng(0))
-    for frame in rec.frames:
-        estimate = est.step(frame)
-        only_gnss = gnss.step(frame)
-        beliefs = est._association_filter.vehicles.beliefs
-        np.testing.assert_array_equal(beliefs.cov, only_gnss.vehicles.cov)
-        np.testing.assert_array_equal(beliefs.mean, estimate.vehicles.mean)

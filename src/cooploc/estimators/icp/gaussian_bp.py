@@ -69,14 +69,10 @@ shared copy.
 The reported feature estimate of each feature is the copy of the agent that holds
 the most information about it (`info["feature_source"]`).
 
-The association's vehicle beliefs (`icp-da-lc`). The paper's (13) uses the predicted
-refined belief b_i of (11). Its mean is what the association needs (a GNSS-only mean
-far off pairs all of a vehicle's detections, consistently shifted, with neighbouring
-features); its covariance, from the loopy BPA-L, is over-confident. So the association
-uses the mean of a second filter that predicts the refined mean and updates it with
-GNSS, with the covariance of the GNSS-only filter (the same gains: a Kalman filter's
-covariances do not depend on its means). The BPA-L itself still starts from the
-GNSS-only b_i^(0).
+The association's vehicle beliefs (`icp-da-lc`) are the GNSS-only b_i^(0). The paper's
+(13) uses the refined predicted belief (11); its mean helps where a GNSS-only mean is
+far off, but a wrong pairing then moves the mean that the next pairing starts from
+(docs/icp.md: tried, and worse on sumo-braunschweig-tlr).
 
 Choices the paper leaves open: N_cons (default 20 rounds), the maximum number of
 BPA-L iterations (default 10), and how an agent learns the number of vehicles the
@@ -221,8 +217,6 @@ class ICP:
                  truth: AssociationTruth | None = None) -> None:
         self.setup, self.params, self.truth = setup, params, truth
         self.local = GnssKF(setup, GnssKFParams(), rng)   # step 1: each vehicle's own filter
-        # the association's vehicle means: the same filter run on the refined means (module doc)
-        self._association_filter = GnssKF(setup, GnssKFParams(), rng)
         layout = setup.vehicle_layout
         self.d = layout.dim
         self.features = _FeatureCopies(self.d)
@@ -252,9 +246,8 @@ class ICP:
         v2f = frame.batches.get("v2f")
         info: dict = {}
         track = np.full(0 if v2f is None else len(v2f), -1, dtype=np.int64)
-        refined = Gaussians(self._association_filter.step(frame).vehicles.mean, prior.cov)
         if v2f is not None and len(v2f) and agents.size:
-            track, info = self.associate(frame, v2f, refined, network)
+            track, info = self.associate(frame, v2f, prior, network)
         elif self.names_tracks:
             info = {"v2f_track": track, "v2f_discarded": 0, "births": 0}
         rows = np.flatnonzero((track >= 0) & np.isin(v2f.sensor, agents)) if track.size else track
@@ -263,9 +256,6 @@ class ICP:
         posterior, iterations = self._bpa_l(network, agents, prior, v2f, rows, track)
         if self.params.feedback:
             self.local.vehicles.beliefs = posterior
-        # a linear filter's covariance does not depend on its means: this one's stays the
-        # GNSS-only covariance of `local`, a consistent bound for the refined mean's error
-        self._association_filter.vehicles.beliefs = Gaussians(posterior.mean, prior.cov)
         info.update(network.counters())
         info["bpa_iterations"] = iterations
         vehicles = checked_states(self.name, "vehicle", agents, posterior.mean, posterior.cov)
