@@ -189,3 +189,57 @@ def test_flood_counts_each_forward_once() -> None:
     flood(net, have, np.ones((3, 1, 4)), 5, priority=np.zeros((3, 1), int))
     # 0 → 1 (round 1), 1 → 0 and 1 → 2 (round 2), 2 → 1 (round 3): 4 block-messages of 4 floats
     assert net.counters() == {"messages": 4, "bytes": 4 * 4 * 8}
+
+
+def test_flood_sends_only_to_agents_that_accept() -> None:
+    net = Network(np.arange(3), _path(3))                  # 0-1-2
+    have = np.array([[True], [False], [False]])
+    got, _, _ = flood(net, have, np.arange(3.0).reshape(3, 1, 1) + 1, 3, np.zeros((3, 1), int),
+                         accept=np.array([False, False, True]))
+    assert got[:, 0].tolist() == [True, False, False]     # 1 does not take it, so 2 never hears of it
+    assert net.counters()["messages"] == 0
+    got, _, _ = flood(net, np.array([[False], [True], [False]]), np.ones((3, 1, 1)), 1,
+                         np.zeros((3, 1), int), accept=np.array([False, False, True]))
+    assert got[:, 0].tolist() == [False, True, True] and net.counters()["messages"] == 1
+
+
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(2, 10), extra=st.integers(0, 12),
+       rounds=st.integers(1, 25))
+@settings(max_examples=25, deadline=None, derandomize=True)
+def test_runs_equal_the_weight_matrix_iteration(seed: int, n: int, extra: int, rounds: int) -> None:
+    """x ← W x for N_cons rounds with the dense Metropolis matrix W, and the running maximum:
+    the runs (which stop at a fixed point) give the same numbers and count every round."""
+    rng = np.random.default_rng(seed)
+    net = Network(np.arange(n), _random_connected(rng, n, extra))
+    consensus = GroupConsensus(net, None, rounds)
+    W = np.zeros((n, n))
+    W[net.target[consensus.edges], net.source[consensus.edges]] = consensus.weights()
+    W[np.arange(n), np.arange(n)] = 1.0 - W.sum(axis=1)
+    values = rng.normal(size=(n, 3))
+    expected = np.linalg.matrix_power(W, rounds) @ values
+    np.testing.assert_allclose(consensus.average(values), expected, rtol=0, atol=1e-12)
+    A = (W > 0).astype(int)
+    reach = np.linalg.matrix_power(A, rounds) > 0          # within `rounds` hops (A has self-loops)
+    expected_max = np.where(reach[:, :, None], values[None], -np.inf).max(axis=1)
+    np.testing.assert_array_equal(consensus.maximum(values), expected_max)
+    before = net.counters()["messages"]
+    consensus.average(np.ones((n, 2)))                     # at its fixed point from the start
+    assert net.counters()["messages"] - before == rounds * net.n_edges
+
+
+def test_member_runs_equal_the_grouped_runs_bitwise(rng: np.random.Generator) -> None:
+    """The (M, r) runs on the members' blocks give, bitwise, the members' blocks of the
+    (n, G, r) runs, and the non-members keep their values there."""
+    n, G = 9, 4
+    net = Network(np.arange(n) * 5, np.arange(n)[_random_connected(rng, n, 8)] * 5)
+    members = rng.random((n, G)) < 0.6
+    values = rng.normal(size=(n, G, 3))
+    grouped = GroupConsensus(net, members, 6)
+    ai, gi = np.nonzero(members)
+    rows = grouped.member_index(ai, gi)
+    assert rows.tolist() == list(range(ai.size))
+    for dense, compact in ((grouped.sum, grouped.sum_members), (grouped.average, grouped.average_members),
+                           (grouped.maximum, grouped.maximum_members)):
+        full = dense(values)
+        np.testing.assert_array_equal(full[ai, gi], compact(values[ai, gi]))
+        np.testing.assert_array_equal(full[~members], values[~members])

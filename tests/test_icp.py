@@ -221,3 +221,35 @@ def test_particle_version_matches_the_exact_snapshot() -> None:
     assert (np.linalg.norm(estimate.vehicles.mean[:, :2] - mean[:, :2], axis=1) < 0.35 * sd).all()
     assert (np.trace(estimate.vehicles.cov[:, :2, :2], axis1=1, axis2=2)
             < np.trace(prior.cov[:, :2, :2], axis1=1, axis2=2)).all()
+
+
+def test_pair_matrices_equal_the_numpy_sum_bitwise(rng: np.random.Generator) -> None:
+    from cooploc.estimators.icp.particle_bp import _pair_matrices
+    from cooploc.particles import pair_kernel
+
+    B, P, J, d = 7, 4, 9, 4
+    blk_pair = np.array([2, 0, 2, 1, 3, 2, 0])             # pairs with 1–3 blocks, out of order
+    kernel = pair_kernel(rng.normal(size=(B, d)), np.repeat(np.eye(d)[None], B, 0) * 2.0,
+                         rng.normal(size=(B, J, d)), rng.normal(size=(B, J, d)))
+    coef = rng.uniform(0.1, 3.0, B)
+    missed = np.array([0.0, 0.3, 0.0, 0.9])
+    expected = np.zeros((P, J, J))
+    np.add.at(expected, blk_pair, coef[:, None, None] * kernel.dense())
+    expected = np.maximum(expected + missed[:, None, None], 1e-300)
+    np.testing.assert_array_equal(_pair_matrices(kernel, blk_pair, coef, missed), expected)
+
+
+def test_a_vehicle_that_joins_takes_its_neighbours_tracks() -> None:
+    rec = preset_recording("brambilla-road", [6, 0], {"feature_spacing": 6.0})
+    joiner = int(rec.frames[0].vehicles[1])
+    late = with_traffic(rec, {joiner: range(6)}, keep_prior=True)     # it enters at step 6
+    est = make_estimator("icp-da-lc", late.setup, None, np.random.default_rng(0))
+    for frame in late.frames[:6]:
+        est.step(frame)
+    assert est.features.ids.size and joiner not in est.features.agents
+    before = est.features.ids.copy()
+    estimate = est.step(late.frames[6])                    # the joiner's first step
+    v2f = late.frames[6].batches["v2f"]
+    mine = estimate.info["v2f_track"][v2f.sensor == joiner]
+    # its rows went to the tracks the other vehicle already held, not to new features
+    assert mine.size == 2 and np.isin(mine, before).all()

@@ -43,6 +43,11 @@ group) pairs, learns the Metropolis weights (one round) and, for sums, the leade
 every group (max consensus, once), then serves any number of average / max / sum
 runs — a BP iteration per run — at O(N_cons P · payload) for P active pairs.
 
+A run stops early at a fixed point (a round in which every agent receives only what it
+holds): the remaining rounds would repeat it exactly, so the result is bitwise that of
+all N_cons rounds. The agents, who cannot see that every other agent is at the fixed
+point, still send those rounds, so they are counted (`Network.count`).
+
 All traffic goes through `Network.exchange_blocks`, so messages and bytes are counted.
 """
 
@@ -53,7 +58,7 @@ import numpy.typing as npt
 
 from cooploc.errors import InvalidInputError
 from cooploc.network import Network
-from cooploc.types import FloatArray
+from cooploc.types import FloatArray, IntArray
 
 __all__ = ["GroupConsensus", "average_consensus", "flood", "max_consensus", "network_sum"]
 
@@ -82,18 +87,36 @@ class GroupConsensus:
                 f"consensus members must have one row per agent ({n}), got shape {self.members.shape}"
             )
         G = self.members.shape[1]
-        on = self.members[network.target] & self.members[network.source]          # (E, G)
-        self.edges, self.blocks = np.nonzero(on)                                    # active pairs
+        # the runs work on the members' blocks only, (M, r) in (agent, group) order
+        self._member_slots = np.flatnonzero(self.members.reshape(-1))
+        self.edges, self.blocks = self._active_pairs(G)
         self.slot = network.target[self.edges] * G + self.blocks                    # receiver (agent, group)
         order = np.argsort(self.slot, kind="stable")
         self.edges, self.blocks, self.slot = self.edges[order], self.blocks[order], self.slot[order]
-        P = self.edges.size
+        self._to = np.searchsorted(self._member_slots, self.slot)                  # receiver's block
+        self._from = np.searchsorted(self._member_slots, network.source[self.edges] * G + self.blocks)
+        P, M = self.edges.size, self._member_slots.size
         self._n_messages = int(np.unique(self.edges).size)
         from scipy import sparse  # here, not at import: `cooploc list` must not load SciPy
 
-        self._sum_into = sparse.csr_matrix((np.ones(P), (self.slot, np.arange(P))), shape=(n * G, P))
+        self._sum_into = sparse.csr_matrix((np.ones(P), (self._to, np.arange(P))), shape=(M, P))
         self._weights: FloatArray | None = None
         self._leader: np.ndarray | None = None
+
+    def _active_pairs(self, G: int) -> tuple[np.ndarray, np.ndarray]:
+        """(edge, group) pairs whose two ends are members, edge-major then by group — without
+        the (E, G) mask: each edge is tried against its target's groups only."""
+        net, slots = self.network, self._member_slots
+        agent_of, group_of = slots // G, slots % G
+        first = np.searchsorted(agent_of, np.arange(net.n_agents + 1))          # each agent's groups
+        count = np.diff(first)[net.target]
+        edge = np.repeat(np.arange(net.n_edges), count)
+        offset = np.arange(edge.size) - np.repeat(np.cumsum(count) - count, count)
+        group = group_of[first[net.target[edge]] + offset]
+        key = net.source[edge] * G + group
+        found = np.minimum(np.searchsorted(slots, key), max(slots.size - 1, 0))
+        both = slots[found] == key if slots.size else np.zeros(0, dtype=bool)
+        return edge[both], group[both]
 
     @property
     def active(self) -> bool:
@@ -102,58 +125,89 @@ class GroupConsensus:
     def weights(self) -> FloatArray:
         """(P,) Metropolis–Hastings weight of each active pair, from one round of degree exchange."""
         if self._weights is None:
-            n, G = self.members.shape
-            degree = np.bincount(self.slot, minlength=n * G).astype(float).reshape(n, G)
+            degree = np.bincount(self._to, minlength=self._member_slots.size).astype(float)
             received = self._exchange(degree)                                          # d_j
-            self._weights = 1.0 / (1.0 + np.maximum(degree.reshape(-1)[self.slot], received))
+            self._weights = 1.0 / (1.0 + np.maximum(degree[self._to], received))
         return self._weights
 
     def average(self, values: npt.ArrayLike) -> FloatArray:
         """Mean of `values` ((n, ...) or grouped (n, G, ...)) over each agent's group component."""
-        x, shape = self._as_blocks(np.array(values, dtype=float))
-        if not self.active:
-            return x.reshape(shape)
-        w = self.weights()[:, None]
-        n, G = self.members.shape
-        for _ in range(self.n_iterations):
-            received = self._exchange(x)                                              # (P, r)
-            own = x.reshape(n * G, -1)[self.slot]
-            x = x + (self._sum_into @ (w * (received - own))).reshape(x.shape)
-        return x.reshape(shape)
+        return self._on_members(self.average_members, np.array(values, dtype=float))
 
     def maximum(self, values: npt.ArrayLike) -> np.ndarray:
         """Running maximum of `values` over each agent's group (exact after diameter rounds)."""
-        x, shape = self._as_blocks(np.array(values))
-        if not self.active:
-            return x.reshape(shape)
-        n, G = self.members.shape
-        starts = np.r_[0, np.flatnonzero(np.diff(self.slot)) + 1]
-        receivers = self.slot[starts]
-        for _ in range(self.n_iterations):
-            received = self._exchange(x)
-            flat = x.reshape(n * G, -1)
-            flat[receivers] = np.maximum(flat[receivers], np.maximum.reduceat(received, starts, axis=0))
-            x = flat.reshape(x.shape)
-        return x.reshape(shape)
+        return self._on_members(self.maximum_members, np.array(values))
 
     def sum(self, values: npt.ArrayLike) -> FloatArray:
         """Σ of `values` over each agent's group component (leader-ratio consensus, module doc)."""
-        x, shape = self._as_blocks(np.asarray(values, dtype=float))
-        if not self.active:
-            return x.reshape(shape).copy()
-        if self._leader is None:
-            ids = np.where(self.members, self.network.agents[:, None], np.iinfo(np.int64).min)
-            self._leader = self.maximum(ids[..., None])[..., 0]
-        is_leader = (self.members & (self._leader == self.network.agents[:, None])).astype(float)
-        averaged = self.average(np.concatenate([x, is_leader[..., None]], axis=2))
-        share = averaged[..., -1]
-        ok = (share > 1e-9) & self.members
-        total = np.where(ok[..., None], averaged[..., :-1] / np.where(ok, share, 1.0)[..., None], x)
-        return total.reshape(shape)
+        return self._on_members(self.sum_members, np.array(values, dtype=float))
 
-    def _exchange(self, x: np.ndarray) -> np.ndarray:
-        """One round over the active pairs: (n, G, r) → (P, r) received."""
-        return self.network.exchange_blocks(x, self.edges, self.blocks, self._n_messages)
+    def member_index(self, agents: IntArray, groups: IntArray) -> IntArray:
+        """Row of (agent index, group) in the members' blocks (M, ...) of the `*_members` runs."""
+        return np.searchsorted(self._member_slots, agents * self.members.shape[1] + groups)
+
+    def average_members(self, mine: FloatArray) -> FloatArray:
+        """`average` on the members' blocks only: (M, r) in (agent, group) order → (M, r)."""
+        mine = np.array(mine, dtype=float)
+        if not self.active:
+            return mine
+        w = self.weights()[:, None]
+        for done in range(1, self.n_iterations + 1):
+            received = self._exchange(mine)                                           # (P, r)
+            own = mine[self._to]
+            if np.array_equal(received, own):     # a fixed point: the other rounds change nothing
+                self._count_rounds(self.n_iterations - done, mine.shape[1])
+                break
+            mine = mine + self._sum_into @ (w * (received - own))
+        return mine
+
+    def maximum_members(self, mine: np.ndarray) -> np.ndarray:
+        """`maximum` on the members' blocks only: (M, r) → (M, r)."""
+        mine = np.array(mine)
+        if not self.active:
+            return mine
+        starts = np.r_[0, np.flatnonzero(np.diff(self._to)) + 1]
+        receivers = self._to[starts]
+        for done in range(1, self.n_iterations + 1):
+            received = self._exchange(mine)
+            if not (received > mine[self._to]).any():   # a fixed point: the other rounds change nothing
+                self._count_rounds(self.n_iterations - done, mine.shape[1])
+                break
+            mine[receivers] = np.maximum(mine[receivers], np.maximum.reduceat(received, starts, axis=0))
+        return mine
+
+    def sum_members(self, mine: FloatArray) -> FloatArray:
+        """`sum` on the members' blocks only: (M, r) → (M, r)."""
+        mine = np.asarray(mine, dtype=float)
+        if not self.active:
+            return mine.copy()
+        ids = self.network.agents[self._member_slots // self.members.shape[1]]
+        if self._leader is None:
+            self._leader = self.maximum_members(ids[:, None])[:, 0]
+        is_leader = (self._leader == ids).astype(float)
+        averaged = self.average_members(np.concatenate([mine, is_leader[:, None]], axis=1))
+        share = averaged[:, -1]
+        ok = share > 1e-9
+        return np.where(ok[:, None], averaged[:, :-1] / np.where(ok, share, 1.0)[:, None], mine)
+
+    def _on_members(self, run, values: np.ndarray) -> np.ndarray:
+        """Apply a `*_members` run to the members' blocks of (n, [G,] ...) values; the
+        other blocks keep their values."""
+        x, shape = self._as_blocks(values)
+        if not self.active:
+            return x.reshape(shape)
+        flat = x.reshape(-1, x.shape[2])
+        flat[self._member_slots] = run(flat[self._member_slots])
+        return x.reshape(shape)
+
+    def _count_rounds(self, rounds: int, width: int) -> None:
+        """Count `rounds` rounds of `width` numbers per block that the agents send, but that
+        the simulation skips because they would change nothing (a fixed point was reached)."""
+        self.network.count(rounds * self._n_messages, rounds * self.edges.size * width)
+
+    def _exchange(self, mine: np.ndarray) -> np.ndarray:
+        """One round over the active pairs: the members' blocks (M, ...) → (P, ...) received."""
+        return self.network.deliver(mine, self._from, self._n_messages)
 
     def _as_blocks(self, values: np.ndarray) -> tuple[np.ndarray, tuple[int, ...]]:
         n, G = self.members.shape
@@ -186,7 +240,7 @@ def network_sum(network: Network, values: npt.ArrayLike, n_iterations: int,
 
 
 def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
-          priority: npt.ArrayLike) -> tuple[_Mask, np.ndarray, np.ndarray]:
+          priority: npt.ArrayLike, accept: _Mask | None = None) -> tuple[_Mask, np.ndarray, np.ndarray]:
     """Spread blocks to the agents that lack them (module doc).
 
     Parameters
@@ -194,6 +248,7 @@ def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
     have : (n, G) which agents hold block g; payload : (n, G, ...) their copies.
     n_rounds : forwarding rounds (blocks travel at most this many hops).
     priority : (n, G) integers ranking the copies; higher wins where copies meet.
+    accept : (n,) the agents that take copies (None: all); nothing is sent to the others.
 
     Returns
     -------
@@ -205,11 +260,14 @@ def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
     payload = np.array(payload, copy=True)
     priority = np.array(np.broadcast_to(priority, have.shape), dtype=np.int64, copy=True)
     fresh = have.copy()                                         # blocks to forward this round
+    into = (np.ones(network.n_edges, dtype=bool) if accept is None
+            else np.asarray(accept, dtype=bool)[network.target])   # edges into agents that take copies
     for _ in range(n_rounds if network.n_edges else 0):
-        edges, blocks = np.nonzero(fresh[network.source])        # every fresh block to every neighbour
+        edges, blocks = np.nonzero(fresh[network.source] & into[:, None])   # fresh blocks to each neighbour
         if edges.size == 0:
             break
-        received = network.exchange_blocks(payload, edges, blocks)
+        # edges come sorted (row-major nonzero): count the distinct ones without a sort
+        received = network.exchange_blocks(payload, edges, blocks, int(np.count_nonzero(np.diff(edges))) + 1)
         target = network.target[edges]
         rank = priority[network.source[edges], blocks]
         wanted = ~have[target, blocks] | (rank > priority[target, blocks])

@@ -101,6 +101,21 @@ class Network:
         self.bytes += int(edges.size) * int(np.prod(values.shape[2:], dtype=np.int64)) * 8
         return values[self.source[edges], blocks]
 
+    def deliver(self, blocks: np.ndarray, carried: IntArray, n_messages: int) -> np.ndarray:
+        """One round in which message p carries block `carried[p]` of `blocks` (B, ...), the
+        blocks the agents hold in any layout the caller indexes (e.g. only the members'
+        blocks of a group consensus); counts `n_messages` messages and the blocks' bytes."""
+        blocks = np.asarray(blocks)
+        self.messages += int(n_messages)
+        self.bytes += int(carried.size) * int(np.prod(blocks.shape[1:], dtype=np.int64)) * 8
+        return blocks[carried]
+
+    def count(self, messages: int, values: int) -> None:
+        """Count `messages` messages carrying `values` numbers in all that the simulation did
+        not deliver because they could change nothing (a consensus at its fixed point)."""
+        self.messages += int(messages)
+        self.bytes += int(values) * 8
+
     def components(self) -> IntArray:
         """(n,) label of the connected component of each agent (for tests and reports)."""
         from scipy import sparse

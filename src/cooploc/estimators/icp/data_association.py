@@ -20,11 +20,12 @@ Algorithm per step, at every agent i, before the Gaussian BPA-L of `icp`:
    feature; the other unclaimed rows are discarded (`info["v2f_discarded"]`).
 
 Births are agreed without a coordinator: each candidate's global state g = z + m_i
-(covariance R + P_i) is flooded to every agent (N_cons rounds); every agent groups the
-candidates it knows — greedily, closest pairs first, only pairs from different vehicles
-within the χ²(4) gate `BIRTH_GATE`, at most one row per vehicle in a group — and names
-each group after its first member, with an id every agent computes alike
-(`BIRTH_ID_BASE`). Agents that know the same candidates form the same groups.
+(covariance R + P_i) is flooded `share_hops` rounds (the vehicles that can see the
+same new feature are within 2 R_s of each other, neighbours when R_c ≥ 2 R_s); every
+agent groups the candidates it knows — greedily, closest pairs first, only pairs from
+different vehicles within the χ²(4) gate `BIRTH_GATE`, at most one row per vehicle in a
+group — and names each group after its first member, with an id every agent computes
+alike (`BIRTH_ID_BASE`). Agents that know the same candidates form the same groups.
 
 Choices the paper leaves open: the birth rule and its gate, P_D of a tracked feature
 (default 0.9; it lets a track out of a vehicle's view be "not detected"), and the
@@ -170,13 +171,16 @@ class ICPDALC(ICP):
         known = copies.known()                                     # (n, F) tracks each agent holds
         if not copies.ids.size or not index.shape[1]:
             return _Association(row_of, mask, known, None, np.ones(index.shape))
-        # (13): η(α = ℓ) = N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), Gaussian beliefs
-        tracks = from_information(np.where(known[..., None, None], copies.Lam, np.eye(self.d)),
-                                  np.where(known[..., None], copies.eta, 0.0))
-        z, R = v2f.z[row_of], v2f.cov[row_of]                      # (n, W, d), (n, W, d, d)
-        rel = tracks.mean - prior.mean[:, None, :]                 # (n, F, d)
-        S = R[:, None] + prior.cov[:, None, None] + tracks.cov[:, :, None]
-        log_l = gaussian_logpdf(z[:, None] - rel[:, :, None], S)   # (n, F, W)
+        # (13): η(α = ℓ) = N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), Gaussian beliefs, for the
+        # tracks each agent holds and its own rows only (the BPA-DA masks the rest)
+        ai, fk = np.nonzero(known)
+        tracks = from_information(copies.Lam[ai, fk], copies.eta[ai, fk])
+        pair, wi = np.nonzero(mask[ai])                             # (agent, track) pair × its rows
+        a, f, rows = ai[pair], fk[pair], row_of[ai[pair], wi]
+        rel = tracks.mean[pair] - prior.mean[a]
+        S = v2f.cov[rows] + prior.cov[a] + tracks.cov[pair]
+        log_l = np.full(known.shape + mask.shape[1:], -np.inf)     # (n, F, W)
+        log_l[a, f, wi] = gaussian_logpdf(v2f.z[rows] - rel, S)
         log_psi, log_missed, log_new = association_weights(log_l, p.detection_probability,
                                                            p.new_feature_intensity)
         marginals = bp_association(log_psi, log_missed, log_new, p.da_iterations,       # (14)–(17)
@@ -188,8 +192,8 @@ class ICPDALC(ICP):
         """Ids of the new features started by the candidate rows, agreed by flooding, and
         the first detection each id is named after (g, P per candidate row).
 
-        Each candidate's global state g = z + m_i (covariance R + P_i) is flooded to
-        every agent (N_cons rounds); every agent then groups the candidates it knows —
+        Each candidate's global state g = z + m_i (covariance R + P_i) is flooded
+        `share_hops` rounds to the agents around; every agent then groups the candidates it knows —
         greedily, closest pairs first, only pairs from different vehicles within the
         χ²(4) gate, at most one row per vehicle in a group — and names each group after
         its first member. Agents that know the same candidates form the same groups.
@@ -211,7 +215,7 @@ class ICPDALC(ICP):
         have[ai, np.arange(C)] = True
         payload = np.zeros((n, C, self.d + self.d * self.d))
         payload[ai, np.arange(C)] = np.concatenate([g, P.reshape(C, -1)], axis=1)
-        have, _, _ = flood(network, have, payload, self.params.consensus_iterations,
+        have, _, _ = flood(network, have, payload, self.params.share_hops,
                            np.broadcast_to(network.agents[:, None], (n, C)))
         # agents that know the same candidates compute the same grouping once
         out = np.empty(C, dtype=np.int64)

@@ -36,8 +36,12 @@ its neighbours send it through a `Network` (`cooploc.network`):
    The loop stops when no vehicle or feature estimate moved by more than 10 cm and
    0.1 m/s (paper §V-A) — each agent checks its own estimates and the agents agree by
    max consensus — or after `max_iterations`.
-4. Every agent gets the new belief of every feature sensed this step (flooding); the
-   refined b_i is reported.
+4. The agents within `share_hops` hops of those that sensed a feature get its new
+   belief (flooding; one hop by default: every vehicle that can sense it at the next
+   step, when R_c ≥ 2 R_s + v T_s, so that the traffic is local, not links × all
+   features); the refined b_i is reported. The shared belief keeps the final mean with
+   the covariance of the first BPA-L iteration (see "Shared tracks" below). A vehicle
+   that joins takes its neighbours' copies before associating (one round).
 
 What runs by default, and the paper's recursion. The paper's prediction (11)–(12)
 starts step t from the refined beliefs b^(N) of step t−1. By default (`feedback =
@@ -54,8 +58,21 @@ them):
   instead of the uniform one.
 Why they are off (the same information counted again at every step): docs/icp.md.
 
+Shared tracks. The BPA-L runs on a loopy graph (vehicles and features), so after a few
+iterations its feature beliefs count the same GNSS fixes many times and are far too
+confident; the association (13) of the next step would then reject the right track and
+start a duplicate (measurements: docs/icp.md). The belief of the
+first iteration is the product of messages computed from the vehicles' independent
+priors, so it counts each fix once: its covariance goes with the final mean into the
+shared copy.
+
 The reported feature estimate of each feature is the copy of the agent that holds
 the most information about it (`info["feature_source"]`).
+
+The association's vehicle beliefs (`icp-da-lc`) are the GNSS-only b_i^(0). The paper's
+(13) uses the refined predicted belief (11); its mean helps where a GNSS-only mean is
+far off, but a wrong pairing then moves the mean that the next pairing starts from
+(docs/icp.md: tried, and worse on sumo-braunschweig-tlr).
 
 Choices the paper leaves open: N_cons (default 20 rounds), the maximum number of
 BPA-L iterations (default 10), and how an agent learns the number of vehicles the
@@ -105,6 +122,11 @@ class ICPParams(Params):
         filter, and the refined belief is only reported. True: the refined belief
         replaces the filter's, so that the next prediction (11) starts from it, as in
         the paper. Why both are off by default: docs/icp.md.
+    share_hops : rounds of flooding that spread each feature's new belief from the
+        vehicles that sensed it (step 4). 1 reaches their neighbours, which is every
+        vehicle that can sense the feature at the next step when R_c ≥ 2 R_s + v T_s;
+        more rounds carry every belief further across the network (N_cons rounds reach
+        a whole city, at a cost that grows with links × features).
     """
 
     consensus_iterations: int = param(20, ge=0)
@@ -113,6 +135,7 @@ class ICPParams(Params):
     velocity_tolerance: float = param(0.1, gt=0)
     feature_memory: bool = False
     feedback: bool = False
+    share_hops: int = param(1, ge=1)
 
 
 def relative_message(A: FloatArray, a: FloatArray, z: FloatArray, R: FloatArray
@@ -217,7 +240,9 @@ class ICP:
         local = self.local.step(frame)                       # b_i^(0): prediction + GNSS (11)
         agents, prior = local.vehicles.ids, Gaussians(local.vehicles.mean, local.vehicles.cov)
         network = Network(agents, frame.links)
+        joined = ~np.isin(agents, self.features.agents)
         self._predict_tracks(agents)                         # (12), for association and BPA-L
+        self._hand_over(network, joined)
         v2f = frame.batches.get("v2f")
         info: dict = {}
         track = np.full(0 if v2f is None else len(v2f), -1, dtype=np.int64)
@@ -249,6 +274,23 @@ class ICP:
         predicted = kf_predict(belief, motion.transition_matrix(self.setup.dt), Q)
         self.features.Lam[known], self.features.eta[known] = to_information(predicted)
 
+    def _hand_over(self, network: Network, joined: np.ndarray) -> None:
+        """Agents that joined this step take their neighbours' copies of the tracks (one round).
+
+        They were not there when the last beliefs were flooded; without the copies, their
+        first detections could only start new features (`icp-da-lc`), which no other
+        vehicle's detections join. The highest-id neighbour's copy wins, as in the flood.
+        """
+        copies = self.features
+        if not joined.any() or not copies.ids.size or not network.n_edges:
+            return
+        n, F, d = copies.Lam.shape[0], copies.ids.size, self.d
+        payload = np.concatenate([copies.Lam.reshape(n, F, d * d), copies.eta], axis=2)
+        owner = np.broadcast_to(network.agents[:, None], (n, F))
+        have, payload, _ = flood(network, copies.known(), payload, 1, owner, accept=joined)
+        copies.Lam = np.where(have[..., None, None], payload[..., : d * d].reshape(n, F, d, d), 0.0)
+        copies.eta = np.where(have[..., None], payload[..., d * d:], 0.0)
+
     def _bpa_l(self, network: Network, agents: IntArray, prior: Gaussians, v2f: Batch | None,
                rows: IntArray, slot_ids: IntArray) -> tuple[Gaussians, int]:
         """BPA-L (19)–(22) until estimates settle; returns the vehicles' posterior and iterations."""
@@ -259,10 +301,6 @@ class ICP:
         p = self.params
         n, F, d = agents.size, self.features.ids.size, self.d
         Lam0, eta0 = to_information(prior)                               # b_i^(0)
-        if p.feature_memory:                                              # b_k^(0), eq. (12)
-            feat_Lam0, feat_eta0 = self.features.Lam.copy(), self.features.eta.copy()
-        else:                                                             # uniform (module doc)
-            feat_Lam0, feat_eta0 = np.zeros((n, F, d, d)), np.zeros((n, F, d))
         agent = np.searchsorted(agents, v2f.sensor[rows])
         slot = np.searchsorted(self.features.ids, slot_ids[rows])
         z, R = v2f.z[rows], v2f.cov[rows]
@@ -270,29 +308,38 @@ class ICP:
         senses[agent, slot] = True
         feature_groups = GroupConsensus(network, senses, p.consensus_iterations)
         everyone = GroupConsensus(network, None, p.consensus_iterations)
+        # only the copies of the agents sensing a feature change: they are kept as rows
+        # (agent, feature) of the members' blocks, M of them, not as (n, F) arrays
+        ma, mf = np.nonzero(senses)
+        member = feature_groups.member_index(agent, slot)               # each row's copy
+        if p.feature_memory:                                              # b_k^(0), eq. (12)
+            feat_Lam0, feat_eta0 = self.features.Lam[ma, mf], self.features.eta[ma, mf]
+        else:                                                             # uniform (module doc)
+            feat_Lam0, feat_eta0 = np.zeros((ma.size, d, d)), np.zeros((ma.size, d))
         m = rows.size
         to_vehicle = (np.zeros((m, d, d)), np.zeros((m, d)))            # m_{k→i}, uniform at n = 0
         Lam_v, eta_v = Lam0, eta0
         feat_Lam, feat_eta = feat_Lam0, feat_eta0
         last_v, last_f = prior.mean, self._feature_means(feat_Lam, feat_eta)
         iterations = 0
-        for iterations in range(1, p.max_iterations + 1):  # noqa: B007 — reported below
+        for iterations in range(1, p.max_iterations + 1):
             # (19) vehicle → feature, from i's extrinsic belief
             B = Lam_v[agent] - to_vehicle[0]
             b = eta_v[agent] - to_vehicle[1]
             to_feature = relative_message(B, b, z, R)
             # (20) Σ_i over the vehicles sensing k, by consensus at every agent
-            local_Lam = np.zeros((n, F, d, d))
-            local_eta = np.zeros((n, F, d))
-            np.add.at(local_Lam, (agent, slot), to_feature[0])
-            np.add.at(local_eta, (agent, slot), to_feature[1])
-            payload = np.concatenate([local_Lam.reshape(n, F, -1), local_eta], axis=2)
-            total = feature_groups.sum(payload)
-            feat_Lam = feat_Lam0 + total[..., : d * d].reshape(n, F, d, d)
-            feat_eta = feat_eta0 + total[..., d * d:]
+            local_Lam = np.zeros((ma.size, d, d))
+            local_eta = np.zeros((ma.size, d))
+            np.add.at(local_Lam, member, to_feature[0])
+            np.add.at(local_eta, member, to_feature[1])
+            total = feature_groups.sum_members(np.concatenate([local_Lam.reshape(-1, d * d), local_eta], 1))
+            feat_Lam = feat_Lam0 + total[:, : d * d].reshape(-1, d, d)
+            feat_eta = feat_eta0 + total[:, d * d:]
+            if iterations == 1:
+                first_Lam = feat_Lam
             # (21) feature → vehicle, from the agent's copy of the feature's extrinsic belief
-            A = _psd(feat_Lam[agent, slot] - to_feature[0])
-            a = feat_eta[agent, slot] - to_feature[1]
+            A = _psd(feat_Lam[member] - to_feature[0])
+            a = feat_eta[member] - to_feature[1]
             to_vehicle = relative_message(A, a, -z, R)
             # (22) b_i = b_i^(0) Π_k m_{k→i}
             Lam_v = Lam0.copy()
@@ -301,27 +348,32 @@ class ICP:
             np.add.at(eta_v, agent, to_vehicle[1])
             now_v = np.linalg.solve(Lam_v, eta_v[..., None])[..., 0]
             now_f = self._feature_means(feat_Lam, feat_eta)
-            moved = np.maximum(self._moved(now_v, last_v), self._moved(now_f, last_f).max(axis=1, initial=0))
+            moved = self._moved(now_v, last_v)
+            np.logical_or.at(moved, ma, self._moved(now_f, last_f))    # an agent's copies moved
             last_v, last_f = now_v, now_f
             still = everyone.maximum(moved.astype(np.int64))
             if not still.any():
                 break
-        self._share_tracks(network, symmetrize(feat_Lam), feat_eta, senses)
+        Lam = np.zeros((n, F, d, d))
+        eta = np.zeros((n, F, d))
+        Lam[ma, mf] = symmetrize(first_Lam)
+        eta[ma, mf] = np.einsum("mij,mj->mi", Lam[ma, mf], self._feature_means(feat_Lam, feat_eta))
+        self._share_tracks(network, Lam, eta, senses)
         return from_information(Lam_v, eta_v), iterations
 
     def _share_tracks(self, network: Network, Lam: FloatArray, eta: FloatArray, senses: np.ndarray) -> None:
-        """Every agent gets the new belief of every feature sensed this step; the rest are reset.
+        """The agents near a feature sensed this step get its new belief; the rest are reset.
 
         The members of a feature's group hold its consensus belief; it is flooded
-        (`consensus.flood`, N_cons rounds, the highest-id member's copy wins) to the other
-        agents, who need it to associate their detections later. A feature that nobody
-        in an agent's reach sensed is reset to uniform there (paper §IV-B): its column
-        is dropped once no agent holds it.
+        (`consensus.flood`, `share_hops` rounds, the highest-id member's copy wins) to the
+        agents around, who need it to associate their detections later. A feature that
+        nobody in an agent's reach sensed is reset to uniform there (paper §IV-B): its
+        column is dropped once no agent holds it.
         """
         n, F, d = Lam.shape[0], Lam.shape[1], self.d
         payload = np.concatenate([Lam.reshape(n, F, d * d), eta], axis=2)
         owner = np.broadcast_to(network.agents[:, None], (n, F))
-        have, payload, _ = flood(network, senses, payload, self.params.consensus_iterations, owner)
+        have, payload, _ = flood(network, senses, payload, self.params.share_hops, owner)
         self.features.Lam = np.where(have[..., None, None], payload[..., : d * d].reshape(n, F, d, d), 0.0)
         self.features.eta = np.where(have[..., None], payload[..., d * d:], 0.0)
         keep = have.any(axis=0)

@@ -57,6 +57,7 @@ from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf, to_in
 from cooploc.network import Network
 from cooploc.params import Params, param
 from cooploc.particles import (
+    PairKernel,
     Particles,
     effective_sample_size,
     normalize_log_weights,
@@ -123,7 +124,9 @@ class ICPDAPF(ICPDALC):
         local = self.local.step(frame)                              # b_i^(0), (11) / (23)
         agents, prior = local.vehicles.ids, Gaussians(local.vehicles.mean, local.vehicles.cov)
         network = Network(agents, frame.links)
+        joined = ~np.isin(agents, self.features.agents)
         self._predict_tracks(agents)                                # (12) / (24)
+        self._hand_over(network, joined)
         v2f = frame.batches.get("v2f")
         info: dict = {"v2f_track": np.full(0 if v2f is None else len(v2f), -1, dtype=np.int64),
                       "v2f_discarded": 0}
@@ -238,11 +241,10 @@ class ICPDAPF(ICPDALC):
         # spread of the beliefs, leaves almost no particle pair inside the kernel
         h2 = p.kernel_bandwidth * (4.0 / ((d + 2) * J)) ** (2.0 / (d + 4))
         spread = h2 * (_sample_cov(X)[pair_i[blk_pair]] + prop_cov[blk_pair] / p.proposal_inflation**2)
-        kernel = pair_kernel(v2f.z[rows], v2f.cov[rows] + spread, S[blk_pair], X[pair_i[blk_pair]]).dense()
-        G = np.zeros((Pn, J, J))
-        np.add.at(G, blk_pair, (blk_p * np.exp(-blk_log_eta))[:, None, None] * kernel)
-        G += np.maximum(1.0 - np.bincount(blk_pair, weights=blk_p, minlength=Pn), 0.0)[:, None, None]
-        G = np.maximum(G, 1e-300)
+        kernel = pair_kernel(v2f.z[rows], v2f.cov[rows] + spread, S[blk_pair], X[pair_i[blk_pair]])
+        G = _pair_matrices(kernel, blk_pair, blk_p * np.exp(-blk_log_eta),
+                           np.maximum(1.0 - np.bincount(blk_pair, weights=blk_p, minlength=Pn), 0.0))
+        del kernel
         members = np.zeros((n, F), dtype=bool)
         members[pair_i, pair_k] = True
         groups = GroupConsensus(network, members, p.consensus_iterations)
@@ -284,6 +286,18 @@ class ICPDAPF(ICPDALC):
         Lam[pair_i, pair_k], eta[pair_i, pair_k] = f_Lam, f_eta
         self._share_tracks(network, Lam, eta, members)
         return Gaussians(v_mean, v_cov), iterations
+
+
+def _pair_matrices(kernel: PairKernel, blk_pair: IntArray, coef: FloatArray,
+                   missed: FloatArray) -> FloatArray:
+    """G (P, J, J) of eq. (18): Σ over each pair's blocks of coef · kernel, plus the missed mass."""
+    from cooploc.estimators.icp._pair_sums import pair_matrices
+
+    order = np.argsort(blk_pair, kind="stable")            # a pair's blocks in their order
+    starts = np.searchsorted(blk_pair[order], np.arange(missed.size + 1))
+    G = np.empty((missed.size, *kernel.values.shape[1:]))
+    pair_matrices(kernel.values, np.exp(kernel.log_scale), coef, starts, order, missed, G)
+    return G
 
 
 def _sample_cov(samples: FloatArray) -> FloatArray:
