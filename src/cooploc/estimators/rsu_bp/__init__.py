@@ -44,6 +44,7 @@ from cooploc.particles import (
     systematic_resample,
     weighted_moments,
 )
+from cooploc.estimators.rsu_bp.tracking import FeatureTracker
 from cooploc.registry import register_estimator
 from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet, lookup_ids
 
@@ -71,6 +72,25 @@ class RsuBPParams(Params):
         else recompute it for each use.
     feature_init : "measurements" — draw the feature particles around the first V2F
         detections (the paper's footnote 1); "prior" — sample `Setup.feature_prior`.
+
+    The unknown-feature model (`rsu_bp.tracking`; Meyer et al. 2018 for existence,
+    births and pruning):
+
+    features : "known" — the paper's K features of `Setup.feature_prior`; "unknown" —
+        potential features born from the V2F rows; "auto" — "known" when the setup has
+        a feature prior, else "unknown".
+    survival_probability : p_s, a potential feature survives one step (Meyer: 0.999).
+    birth_density : μ_b f_b, expected new features per m² and step (uniform in position).
+    birth_velocity_std : σ_b of the birth intensity on the non-position components (m/s).
+    max_detection_probability : P_D is min(`Setup.detection_probability`, this): with
+        P_D = 1 one undetected step would delete a feature outright.
+    gate_probability : a feature–row pair enters the BP inside this χ² ellipsoid.
+    prune_threshold : potential features with existence below this are dropped (Meyer:
+        10⁻³); rows start a feature only with at least this existence.
+    existence_threshold : features with existence at least this are reported (0.5).
+    feature_update : "fix" — a vehicle sends a feature its belief the first time it sees
+        it and only its GNSS fix afterwards; "belief" — its belief every step (the paper's
+        messages; their loop through time compounds, see `rsu_bp.tracking`).
     """
 
     n_particles: int = param(600, ge=2)
@@ -81,6 +101,15 @@ class RsuBPParams(Params):
     shrinkage_move: bool = True
     kernel_memory_mb: float = 512.0
     feature_init: str = param("measurements", choices=("measurements", "prior"))
+    features: str = param("auto", choices=("auto", "known", "unknown"))
+    survival_probability: float = param(0.999, gt=0, le=1)
+    birth_density: float = param(1e-5, gt=0, finite=True)
+    birth_velocity_std: float = param(2.0, gt=0, finite=True)
+    max_detection_probability: float = param(0.99, gt=0, le=1)
+    gate_probability: float = param(0.9999, gt=0, lt=1)
+    prune_threshold: float = param(1e-3, gt=0, lt=1)
+    existence_threshold: float = param(0.5, gt=0, le=1)
+    feature_update: str = param("fix", choices=("fix", "belief"))
 
     def validate(self) -> None:
         # no finiteness asked: inf means "always store the kernel"
@@ -126,6 +155,13 @@ class RsuBP:
             self.Ff = setup.feature_motion.transition_matrix(setup.dt)
         else:
             self.feature_ids = np.zeros(0, dtype=np.int64)
+        self.tracker: FeatureTracker | None = None     # the unknown-feature model, if used
+        if params.features == "known" or (params.features == "auto" and track):
+            pass
+        elif self.v2f is not None and setup.feature_layout is not None:
+            self.feature_ids = np.zeros(0, dtype=np.int64)
+            track = False
+            self.tracker = True  # built below, once the clutter intensity is known
         self.features: Particles | None = None        # None until initialised from V2F rows
         self.feature_gauss: Gaussians | None = None   # predicted prior until then
         self.vehicle_ids: IntArray = np.zeros(0, dtype=np.int64)
@@ -140,6 +176,8 @@ class RsuBP:
                                   "(the clutter density is uniform over it)")
             region = np.asarray(setup.clutter_region)
             self.clutter_intensity = setup.clutter_rate / float(np.prod(region[:, 1] - region[:, 0]))
+        if self.tracker is not None:
+            self.tracker = FeatureTracker(setup, params, self.clutter_intensity)
 
     # ------------------------------------------------------------------ step
 
@@ -149,6 +187,8 @@ class RsuBP:
         gnss_used = self._vehicles_sync_predict(frame, steps)
         self._features_predict(frame, steps)
         log_phi_chi = self.vehicles.log_weights + self._gnss_loglik(frame, gnss_used)  # φ χ
+        if self.tracker is not None:
+            return self._step_unknown(frame, steps, log_phi_chi)
         info: dict[str, Any] = {}
         v2f = frame.batches.get("v2f")
         n_rows = len(v2f) if v2f is not None else 0
@@ -175,6 +215,33 @@ class RsuBP:
         # score them as tracks (the true feature most of their rows came from)
         info["v2f_track"] = decided
         info["v2f_discarded"] = int((decided < 0).sum())
+        estimate = self._estimate(info)
+        self._resample()
+        return estimate
+
+    def _step_unknown(self, frame: Frame, steps: int | None, log_phi_chi: FloatArray) -> Estimate:
+        """One step with potential features (`rsu_bp.tracking`) instead of the K known ones."""
+        self.tracker.predict(steps)
+        v2f = frame.batches.get("v2f")
+        n_rows = len(v2f) if v2f is not None else 0
+        track = np.full(n_rows, -1, dtype=np.int64)
+        rows = np.zeros(0, dtype=np.int64)
+        if n_rows and len(self.vehicles):
+            rows = np.flatnonzero(lookup_ids(self.vehicle_ids, v2f.sensor)[1])
+        log_bx = log_phi_chi
+        info: dict[str, Any] = {}
+        if rows.size:
+            log_wx = normalize_log_weights(log_phi_chi)[0]
+            mean, cov = weighted_moments(Particles(self.vehicles.samples, log_wx))
+            log_mu, track[rows], found = self.tracker.update(
+                self.vehicle_ids, self.vehicles.samples, log_wx, mean, cov, v2f.select(rows),
+                frame.batches.get("gnss"))
+            log_bx = log_phi_chi + log_mu
+            info.update(found)
+        self.vehicles = Particles(self.vehicles.samples, normalize_log_weights(log_bx)[0])
+        info["v2f_association"] = track
+        info["v2f_track"] = track
+        info["v2f_discarded"] = int((track < 0).sum())
         estimate = self._estimate(info)
         self._resample()
         return estimate
@@ -412,7 +479,9 @@ class RsuBP:
         v_ess = effective_sample_size(self.vehicles.log_weights)
         info["vehicle_ess"] = v_ess
         features = None
-        if self.df and self.feature_ids.size:
+        if self.tracker is not None:
+            features, info["feature_existence"] = self.tracker.estimate()
+        elif self.df and self.feature_ids.size:
             if self.features is None:
                 f_mean, f_cov = self.feature_gauss.mean, self.feature_gauss.cov
                 f_ess = np.zeros(0)
