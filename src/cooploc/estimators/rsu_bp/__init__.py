@@ -28,6 +28,7 @@ import numpy as np
 from cooploc.association import association_weights, bp_association, decide, padded_groups
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
+from cooploc.estimators.rsu_bp.tracking import FeatureTracker
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -44,7 +45,6 @@ from cooploc.particles import (
     systematic_resample,
     weighted_moments,
 )
-from cooploc.estimators.rsu_bp.tracking import FeatureTracker
 from cooploc.registry import register_estimator
 from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup, StateSet, lookup_ids
 
