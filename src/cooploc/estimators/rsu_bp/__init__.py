@@ -28,7 +28,8 @@ import numpy as np
 from cooploc.association import association_weights, bp_association, decide, padded_groups
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
-from cooploc.estimators.rsu_bp.tracking import FeatureTracker
+from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
+from cooploc.estimators.rsu_bp.tracking import FeatureTracker, VehicleMessages
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -52,6 +53,10 @@ __all__ = ["RsuBP", "RsuBPParams"]
 
 #: ESS below this share of N_p is reported as degenerate in `Estimate.info`.
 DEGENERACY_SHARE = 0.1
+#: the unknown-feature model draws vehicle particles from its Gaussian proposal widened by this
+PROPOSAL_SPREAD = 1.5
+#: shares of (that Gaussian, single-association hypotheses, own track) in the proposal
+PROPOSAL_SHARES = (0.5, 0.3, 0.2)
 
 
 @dataclass(frozen=True)
@@ -88,9 +93,6 @@ class RsuBPParams(Params):
     prune_threshold : potential features with existence below this are dropped (Meyer:
         10⁻³); rows start a feature only with at least this existence.
     existence_threshold : features with existence at least this are reported (0.5).
-    feature_update : "fix" — a vehicle sends a feature its belief the first time it sees
-        it and only its GNSS fix afterwards; "belief" — its belief every step (the paper's
-        messages; their loop through time compounds, see `rsu_bp.tracking`).
     """
 
     n_particles: int = param(600, ge=2)
@@ -109,7 +111,6 @@ class RsuBPParams(Params):
     gate_probability: float = param(0.9999, gt=0, lt=1)
     prune_threshold: float = param(1e-3, gt=0, lt=1)
     existence_threshold: float = param(0.5, gt=0, le=1)
-    feature_update: str = param("fix", choices=("fix", "belief"))
 
     def validate(self) -> None:
         # no finiteness asked: inf means "always store the kernel"
@@ -178,17 +179,18 @@ class RsuBP:
             self.clutter_intensity = setup.clutter_rate / float(np.prod(region[:, 1] - region[:, 0]))
         if self.tracker is not None:
             self.tracker = FeatureTracker(setup, params, self.clutter_intensity)
+            self.own = GnssKF(setup, GnssKFParams(), rng)
 
     # ------------------------------------------------------------------ step
 
     def step(self, frame: Frame) -> Estimate:
         steps = frame.k - self.last_k if self.last_k is not None else None
         self.last_k = frame.k
+        if self.tracker is not None:
+            return self._step_unknown(frame, steps)
         gnss_used = self._vehicles_sync_predict(frame, steps)
         self._features_predict(frame, steps)
         log_phi_chi = self.vehicles.log_weights + self._gnss_loglik(frame, gnss_used)  # φ χ
-        if self.tracker is not None:
-            return self._step_unknown(frame, steps, log_phi_chi)
         info: dict[str, Any] = {}
         v2f = frame.batches.get("v2f")
         n_rows = len(v2f) if v2f is not None else 0
@@ -219,32 +221,91 @@ class RsuBP:
         self._resample()
         return estimate
 
-    def _step_unknown(self, frame: Frame, steps: int | None, log_phi_chi: FloatArray) -> Estimate:
-        """One step with potential features (`rsu_bp.tracking`) instead of the K known ones."""
+    def _step_unknown(self, frame: Frame, steps: int | None) -> Estimate:
+        """One step with potential features (`rsu_bp.tracking`) instead of the K known ones.
+
+        φ_s χ_s is each vehicle's own GNSS track (`gnss-kf`), sampled afresh every step;
+        the features' messages weight the samples and are not carried into the track.
+        """
+        own = self.own.step(frame).vehicles
         self.tracker.predict(steps)
+        N = self.params.n_particles
+        samples = sample_gaussians(own.mean, own.cov, N, self.rng).samples        # φχ
+        log_w = np.full((len(own), N), -np.log(N))
         v2f = frame.batches.get("v2f")
         n_rows = len(v2f) if v2f is not None else 0
         track = np.full(n_rows, -1, dtype=np.int64)
         rows = np.zeros(0, dtype=np.int64)
-        if n_rows and len(self.vehicles):
-            rows = np.flatnonzero(lookup_ids(self.vehicle_ids, v2f.sensor)[1])
-        log_bx = log_phi_chi
+        if n_rows and len(own):
+            rows = np.flatnonzero(lookup_ids(own.ids, v2f.sensor)[1])
         info: dict[str, Any] = {}
         if rows.size:
-            log_wx = normalize_log_weights(log_phi_chi)[0]
-            mean, cov = weighted_moments(Particles(self.vehicles.samples, log_wx))
-            log_mu, track[rows], found = self.tracker.update(
-                self.vehicle_ids, self.vehicles.samples, log_wx, mean, cov, v2f.select(rows),
-                frame.batches.get("gnss"))
-            log_bx = log_phi_chi + log_mu
+            messages, track[rows], found = self.tracker.update(
+                own.ids, samples, log_w, own.mean, own.cov, v2f.select(rows), frame.batches.get("gnss"))
             info.update(found)
-        self.vehicles = Particles(self.vehicles.samples, normalize_log_weights(log_bx)[0])
+            samples, log_w = self._posterior_samples(own, messages)
+        posterior = Particles(samples, log_w)
+        mean, cov = weighted_moments(posterior)
         info["v2f_association"] = track
         info["v2f_track"] = track
         info["v2f_discarded"] = int((track < 0).sum())
-        estimate = self._estimate(info)
-        self._resample()
-        return estimate
+        info["vehicle_ess"] = effective_sample_size(log_w)
+        info["degenerate"] = bool(len(own) and info["vehicle_ess"].min() < DEGENERACY_SHARE * N)
+        features, info["feature_existence"] = self.tracker.estimate()
+        vehicles = checked_states(self.name, "vehicle", own.ids, mean, cov)
+        return Estimate(vehicles, features, info)
+
+    def _posterior_samples(self, own: StateSet, messages: VehicleMessages) -> tuple[FloatArray, FloatArray]:
+        """Particles of b_s = φ_s χ_s Π_k μ_{k,s} by defensive importance sampling.
+
+        Drawn from the own track alone, a 0.3 m posterior inside an 8 m fix keeps a
+        handful of particles; drawn from one Gaussian (`VehicleMessages.gaussian`) alone, a
+        wrong dominant association is never corrected. The proposal mixes three parts
+        (`PROPOSAL_SHARES`; Hesterberg 1995, defensive importance sampling): that
+        Gaussian widened by `PROPOSAL_SPREAD`; the single-association hypotheses
+        (`VehicleMessages.hypotheses`, equal shares per vehicle); the own track.
+        """
+        N = self.params.n_particles
+        S, dx = own.mean.shape
+        near = messages.gaussian(own.mean, own.cov)
+        near = Gaussians(near.mean, PROPOSAL_SPREAD**2 * near.cov)
+        hyp = messages.hypotheses(own.mean, own.cov)
+        n_hyp = np.bincount(messages.vehicle, minlength=S)
+        shares = np.array(PROPOSAL_SHARES)
+        counts = np.round(shares * N).astype(int)
+        counts[0] = N - counts[1:].sum()
+        # part 1: near; part 2: a hypothesis drawn per particle (near where a vehicle has none)
+        samples = np.empty((S, N, dx))
+        samples[:, :counts[0]] = sample_gaussians(near.mean, near.cov, counts[0], self.rng).samples
+        start, stop = counts[0], counts[0] + counts[1]
+        first = np.concatenate([[0], np.cumsum(n_hyp)[:-1]])
+        order = np.argsort(messages.vehicle, kind="stable")
+        pick = order[first[:, None] + (self.rng.random((S, counts[1])) * np.maximum(n_hyp, 1)[:, None]
+                                       ).astype(np.int64).clip(max=np.maximum(n_hyp - 1, 0)[:, None])] \
+            if messages.vehicle.size else np.zeros((S, counts[1]), np.int64)
+        has = n_hyp > 0
+        z = self.rng.standard_normal((S, counts[1], dx))
+        if messages.vehicle.size:
+            L = np.linalg.cholesky(hyp.cov)
+            drawn = hyp.mean[pick] + np.einsum("snij,snj->sni", L[pick], z)
+        else:
+            drawn = np.zeros((S, counts[1], dx))
+        fallback = near.mean[:, None] + np.einsum("sij,snj->sni", np.linalg.cholesky(near.cov), z)
+        samples[:, start:stop] = np.where(has[:, None, None], drawn, fallback)
+        samples[:, stop:] = sample_gaussians(own.mean, own.cov, N - stop, self.rng).samples
+        # the proposal density at every particle
+        log_own = gaussian_logpdf(samples - own.mean[:, None], own.cov[:, None])
+        log_near = gaussian_logpdf(samples - near.mean[:, None], near.cov[:, None])
+        log_hyp = log_near.copy()
+        if messages.vehicle.size:
+            per_pair = gaussian_logpdf(samples[messages.vehicle] - hyp.mean[:, None], hyp.cov[:, None])
+            from cooploc.estimators.rsu_bp.tracking import group_log_sum
+            summed = group_log_sum(per_pair[order], messages.vehicle[order], S)
+            log_hyp = np.where(has[:, None], summed - np.log(np.maximum(n_hyp, 1))[:, None], log_near)
+        with np.errstate(divide="ignore"):
+            log_q = np.logaddexp.reduce(np.stack([np.log(shares[0]) + log_near, np.log(shares[1]) + log_hyp,
+                                                  np.log(shares[2]) + log_own]), axis=0)
+        return samples, normalize_log_weights(log_own - log_q + messages.log_mu(samples))[0]
 
     # ------------------------------------------------------------ vehicles
 
@@ -479,9 +540,7 @@ class RsuBP:
         v_ess = effective_sample_size(self.vehicles.log_weights)
         info["vehicle_ess"] = v_ess
         features = None
-        if self.tracker is not None:
-            features, info["feature_existence"] = self.tracker.estimate()
-        elif self.df and self.feature_ids.size:
+        if self.df and self.feature_ids.size:
             if self.features is None:
                 f_mean, f_cov = self.feature_gauss.mean, self.feature_gauss.cov
                 f_ess = np.zeros(0)

@@ -90,7 +90,7 @@ def _log_normal(residual: FloatArray, inv_chol: FloatArray, log_det: FloatArray)
     return -0.5 * (d * _LOG_2PI + log_det[:, None] + (white**2).sum(-1))
 
 
-def _group_log_sum(values: FloatArray, group: IntArray, n_groups: int) -> FloatArray:
+def group_log_sum(values: FloatArray, group: IntArray, n_groups: int) -> FloatArray:
     """log Σ exp over rows of the same group (rows sorted by group), (n_groups, …); −inf if none."""
     out = np.full((n_groups, *values.shape[1:]), -np.inf)
     if not values.shape[0]:
@@ -98,6 +98,79 @@ def _group_log_sum(values: FloatArray, group: IntArray, n_groups: int) -> FloatA
     starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
     out[group[starts]] = np.logaddexp.reduceat(values, starts, axis=0)
     return out
+
+
+@dataclass
+class VehicleMessages:
+    """The messages μ_{k,s} of one step (step 6), to evaluate at any vehicle particles.
+
+    Per gated row–feature pair p: the vehicle s_p, its (s, k) group, the residual offset
+    a_p = z − H f̃ (so the residual at x is a_p + H x), covariance W + H P̃ Hᵀ and log
+    coefficient log(r⁻ P_D ν); per group the miss term log(1 − r⁻ P_D p_{k,s}).
+    """
+
+    n_vehicles: int
+    Hx: FloatArray
+    vehicle: IntArray
+    group: IntArray
+    group_vehicle: IntArray
+    offset: FloatArray
+    cov: FloatArray
+    log_coef: FloatArray
+    log_miss: FloatArray
+
+    def log_mu(self, samples: FloatArray) -> FloatArray:
+        """Σ_k log μ_{k,s}(x_l) (S, N), each message scaled to a maximum of 1."""
+        S, N = samples.shape[0], samples.shape[1]
+        out = np.zeros((S, N))
+        if not self.vehicle.size:
+            return out
+        inv_L, log_det = _inverse_cholesky(self.cov)
+        resid = self.offset[:, None, :] + samples[self.vehicle] @ self.Hx.T
+        log_l = _log_normal(resid, inv_L, log_det)
+        log_msg = group_log_sum(self.log_coef[:, None] + log_l, self.group, self.log_miss.size)
+        log_msg = np.logaddexp(self.log_miss[:, None], log_msg)
+        np.add.at(out, self.group_vehicle, log_msg - log_msg.max(axis=1, keepdims=True))
+        return out
+
+    def hypotheses(self, mean: FloatArray, cov: FloatArray) -> Gaussians:
+        """Per pair p, the vehicle's belief updated with "row p came from its feature" alone.
+
+        Each is where the vehicle must be if that association holds; a vehicle with a wide
+        belief and several rows is localised by the hypotheses on which the rows agree.
+        """
+        Hx = self.Hx
+        prior_cov = cov[self.vehicle]
+        S = self.cov + Hx @ prior_cov @ Hx.T
+        gain = np.linalg.solve(S, Hx @ prior_cov).transpose(0, 2, 1)               # P Hᵀ S⁻¹
+        innovation = -self.offset - mean[self.vehicle] @ Hx.T                       # H x = −a
+        post_mean = mean[self.vehicle] + np.einsum("pij,pj->pi", gain, innovation)
+        post_cov = symmetrize(prior_cov - gain @ Hx @ prior_cov)
+        return Gaussians(post_mean, post_cov)
+
+    def gaussian(self, mean: FloatArray, cov: FloatArray) -> Gaussians:
+        """The vehicles' beliefs times each message's dominant component, in closed form.
+
+        Every row enters as x ≈ −H⁻ a_p (covariance W + H P̃ Hᵀ) weighted by its share of
+        the message at the belief's mean: a Gaussian close to the posterior, from which
+        the particles are drawn (the importance weights then correct the rest).
+        """
+        if not self.vehicle.size:
+            return Gaussians(mean, cov)
+        Hx = self.Hx
+        Cinv = np.linalg.inv(self.cov)
+        resid = self.offset + mean[self.vehicle] @ Hx.T
+        log_l = -0.5 * np.einsum("pi,pij,pj->p", resid, Cinv, resid) \
+            - 0.5 * np.linalg.slogdet(self.cov)[1]
+        terms = self.log_coef + log_l
+        total = np.logaddexp(self.log_miss[self.group], group_log_sum(terms, self.group,
+                                                                       self.log_miss.size)[self.group])
+        share = np.exp(terms - total)
+        lam, eta = np.linalg.inv(cov), np.zeros_like(mean)
+        eta = np.einsum("sij,sj->si", lam, mean)
+        np.add.at(lam, self.vehicle, np.einsum("ji,pjk,kl->pil", Hx, Cinv, Hx) * share[:, None, None])
+        np.add.at(eta, self.vehicle, np.einsum("ji,pjk,pk->pi", Hx, Cinv, -self.offset) * share[:, None])
+        return from_information(symmetrize(lam), eta)
 
 
 class FeatureTracker:
@@ -154,7 +227,7 @@ class FeatureTracker:
 
     def update(self, vehicle_ids: IntArray, samples: FloatArray, log_wx: FloatArray,
                v_mean: FloatArray, v_cov: FloatArray, v2f: Batch, gnss: Batch | None
-               ) -> tuple[FloatArray, IntArray, dict[str, Any]]:
+               ) -> tuple[VehicleMessages, IntArray, dict[str, Any]]:
         """Steps 2–7 for the V2F rows `v2f` of present vehicles.
 
         Parameters
@@ -164,7 +237,7 @@ class FeatureTracker:
 
         Returns
         -------
-        log_mu (S, N) Σ_k log μ_{k,s}, the track id of every row (−1: none), diagnostics.
+        The messages μ_{k,s} to the vehicles, the track id of every row (−1: none), diagnostics.
         """
         prm, f, p_d = self.params, self.features, self.p_d
         S, N = log_wx.shape
@@ -215,7 +288,7 @@ class FeatureTracker:
         log_nu = marg.log_nu[s_row[r_idx], k_slot[pair], m_slot[r_idx]]          # (P,)
         not_legacy = marg.clutter[s_row, m_slot]                                   # (R,)
         # existence likelihood L_{k,s} per pair with rows, then misses of features in range
-        log_nb = _group_log_sum(log_nu + log_beta, pair, n_sk)
+        log_nb = group_log_sum(log_nu + log_beta, pair, n_sk)
         log_L = ex.log_existence_likelihood(log_nb, p_d, p_in_sk)                  # (n_sk,)
         log_L_feature = np.zeros(f.ids.size)
         np.add.at(log_L_feature, sk_k, log_L)
@@ -249,17 +322,13 @@ class FeatureTracker:
         sent_v = own_v + np.array([v for _, v in past]).reshape(own_v.shape)
         self.sent.update(zip(keys, zip(sent_m, sent_v, strict=True), strict=True))
         extrinsic = self._without(lam[where], eta[where], sent_m, sent_v)
-        Pf = Hf @ extrinsic.cov[pair] @ Hf.T
-        inv_L, log_det = _inverse_cholesky(v2f.cov[r_idx] + Pf)
-        resid = (v2f.z[r_idx] - extrinsic.mean[pair] @ Hf.T)[:, None, :] + samples[s_row[r_idx]] @ Hx.T
-        log_l = _log_normal(resid, inv_L, log_det)
         with np.errstate(divide="ignore"):
-            log_det_term = np.log(r_minus[k_idx] * p_d) + log_nu
-        log_msg = _group_log_sum(log_det_term[:, None] + log_l, pair, n_sk)       # (n_sk, N)
-        with np.errstate(divide="ignore"):
-            log_msg = np.logaddexp(np.log1p(-r_minus[sk_k] * p_d * p_in_sk)[:, None], log_msg)
-        log_mu = np.zeros((S, N))
-        np.add.at(log_mu, sk_s, log_msg - log_msg.max(axis=1, keepdims=True))
+            log_coef = np.log(r_minus[k_idx] * p_d) + log_nu
+            log_miss = np.log1p(-r_minus[sk_k] * p_d * p_in_sk)
+        messages = VehicleMessages(
+            S, Hx, s_row[r_idx], pair, sk_s, v2f.z[r_idx] - extrinsic.mean[pair] @ Hf.T,
+            v2f.cov[r_idx] + Hf @ extrinsic.cov[pair] @ Hf.T, log_coef, log_miss)
+        log_mu = messages.log_mu(samples)
         # posterior features; 7. existence
         post = from_information(lam, eta)
         f.mean[touched], f.cov[touched] = post.mean, post.cov
@@ -278,7 +347,7 @@ class FeatureTracker:
         self._prune()
         info = {"potential_features": int(f.ids.size), "features_born": n_born,
                 "gated_pairs": int(r_idx.size), "da_iterations": marg.iterations}
-        return log_mu, track, info
+        return messages, track, info
 
     def estimate(self) -> tuple[StateSet, FloatArray]:
         """Reported features (r ≥ existence_threshold) and their existence probabilities."""
@@ -368,8 +437,6 @@ class FeatureTracker:
         s = s_row[rows]
         y = v2f.z[rows] + v_mean[s] @ self.Hx.T
         C = v2f.cov[rows] + self.Hx @ v_cov[s] @ self.Hx.T
-        if self.params.feature_update != "fix":
-            return y, C, np.ones(rows.size, dtype=bool)
         use = np.zeros(rows.size, dtype=bool)
         if self.fix_map is not None and gnss is not None and len(gnss):
             g_row, use = lookup_ids(gnss.subject, v2f.sensor[rows])
