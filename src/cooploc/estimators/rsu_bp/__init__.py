@@ -280,9 +280,9 @@ class RsuBP:
         start, stop = counts[0], counts[0] + counts[1]
         first = np.concatenate([[0], np.cumsum(n_hyp)[:-1]])
         order = np.argsort(messages.vehicle, kind="stable")
-        pick = order[first[:, None] + (self.rng.random((S, counts[1])) * np.maximum(n_hyp, 1)[:, None]
-                                       ).astype(np.int64).clip(max=np.maximum(n_hyp - 1, 0)[:, None])] \
-            if messages.vehicle.size else np.zeros((S, counts[1]), np.int64)
+        offset = (self.rng.random((S, counts[1])) * n_hyp[:, None]).astype(np.int64)
+        pick = order[np.minimum(first[:, None] + offset, max(order.size - 1, 0))] \
+            if order.size else np.zeros((S, counts[1]), np.int64)
         has = n_hyp > 0
         z = self.rng.standard_normal((S, counts[1], dx))
         if messages.vehicle.size:
