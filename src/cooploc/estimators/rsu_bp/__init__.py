@@ -29,7 +29,7 @@ from cooploc.association import association_weights, bp_association, decide, pad
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
-from cooploc.estimators.rsu_bp.tracking import FeatureTracker, VehicleMessages
+from cooploc.estimators.rsu_bp.tracking import FeatureTracker, VehicleMessages, group_log_sum, log_normal_rows
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -287,19 +287,18 @@ class RsuBP:
         z = self.rng.standard_normal((S, counts[1], dx))
         if messages.vehicle.size:
             L = np.linalg.cholesky(hyp.cov)
-            drawn = hyp.mean[pick] + np.einsum("snij,snj->sni", L[pick], z)
+            drawn = hyp.mean[pick] + (L[pick] @ z[..., None])[..., 0]
         else:
             drawn = np.zeros((S, counts[1], dx))
         fallback = near.mean[:, None] + np.einsum("sij,snj->sni", np.linalg.cholesky(near.cov), z)
         samples[:, start:stop] = np.where(has[:, None, None], drawn, fallback)
         samples[:, stop:] = sample_gaussians(own.mean, own.cov, N - stop, self.rng).samples
         # the proposal density at every particle
-        log_own = gaussian_logpdf(samples - own.mean[:, None], own.cov[:, None])
-        log_near = gaussian_logpdf(samples - near.mean[:, None], near.cov[:, None])
+        log_own = log_normal_rows(samples - own.mean[:, None], own.cov)
+        log_near = log_normal_rows(samples - near.mean[:, None], near.cov)
         log_hyp = log_near.copy()
         if messages.vehicle.size:
-            per_pair = gaussian_logpdf(samples[messages.vehicle] - hyp.mean[:, None], hyp.cov[:, None])
-            from cooploc.estimators.rsu_bp.tracking import group_log_sum
+            per_pair = log_normal_rows(samples[messages.vehicle] - hyp.mean[:, None], hyp.cov)
             summed = group_log_sum(per_pair[order], messages.vehicle[order], S)
             log_hyp = np.where(has[:, None], summed - np.log(np.maximum(n_hyp, 1))[:, None], log_near)
         with np.errstate(divide="ignore"):

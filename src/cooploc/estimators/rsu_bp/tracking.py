@@ -85,9 +85,14 @@ def _inverse_cholesky(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 def _log_normal(residual: FloatArray, inv_chol: FloatArray, log_det: FloatArray) -> FloatArray:
     """log N(r; 0, C) for residuals (P, N, d), one covariance per pair (P): L⁻¹ (P, d, d)."""
-    white = np.einsum("pde,pne->pnd", inv_chol, residual)
+    white = residual @ np.swapaxes(inv_chol, 1, 2)
     d = residual.shape[-1]
-    return -0.5 * (d * _LOG_2PI + log_det[:, None] + (white**2).sum(-1))
+    return -0.5 * (d * _LOG_2PI + log_det[:, None] + np.einsum("pnd,pnd->pn", white, white))
+
+
+def log_normal_rows(residual: FloatArray, cov: FloatArray) -> FloatArray:
+    """log N(r; 0, C_p) for residuals (P, N, d) and one covariance per row (P, d, d)."""
+    return _log_normal(residual, *_inverse_cholesky(cov))
 
 
 def group_log_sum(values: FloatArray, group: IntArray, n_groups: int) -> FloatArray:
@@ -96,7 +101,12 @@ def group_log_sum(values: FloatArray, group: IntArray, n_groups: int) -> FloatAr
     if not values.shape[0]:
         return out
     starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
-    out[group[starts]] = np.logaddexp.reduceat(values, starts, axis=0)
+    top = np.maximum.reduceat(values, starts, axis=0)
+    safe = np.where(np.isfinite(top), top, 0.0)
+    counts = np.diff(np.r_[starts, values.shape[0]])
+    with np.errstate(divide="ignore"):
+        out[group[starts]] = safe + np.log(np.add.reduceat(np.exp(values - np.repeat(safe, counts, axis=0)),
+                                                           starts, axis=0))
     return out
 
 
@@ -328,7 +338,6 @@ class FeatureTracker:
         messages = VehicleMessages(
             S, Hx, s_row[r_idx], pair, sk_s, v2f.z[r_idx] - extrinsic.mean[pair] @ Hf.T,
             v2f.cov[r_idx] + Hf @ extrinsic.cov[pair] @ Hf.T, log_coef, log_miss)
-        log_mu = messages.log_mu(samples)
         # posterior features; 7. existence
         post = from_information(lam, eta)
         f.mean[touched], f.cov[touched] = post.mean, post.cov
@@ -343,7 +352,7 @@ class FeatureTracker:
         slot_feature[sk_s, k_slot] = f.ids[sk_k]
         track[legacy_row] = slot_feature[s_row[legacy_row], best[legacy_row]]
         r_new = ex.new_existence(not_legacy, log_birth, log_kappa)
-        n_born = self._births(v2f, s_row, vehicle_ids, samples, log_wx + log_mu, r_new, track, gnss)
+        n_born = self._births(v2f, s_row, vehicle_ids, messages.gaussian(v_mean, v_cov), r_new, track, gnss)
         self._prune()
         info = {"potential_features": int(f.ids.size), "features_born": n_born,
                 "gated_pairs": int(r_idx.size), "da_iterations": marg.iterations}
@@ -462,16 +471,15 @@ class FeatureTracker:
             out_v[bad] = eta[bad] - shrink * sent_v[bad]
         return from_information(out_m, out_v)
 
-    def _births(self, v2f: Batch, s_row: IntArray, vehicle_ids: IntArray, samples: FloatArray,
-                log_b: FloatArray, r_new: FloatArray, track: IntArray, gnss: Batch | None) -> int:
+    def _births(self, v2f: Batch, s_row: IntArray, vehicle_ids: IntArray, belief: Gaussians,
+                r_new: FloatArray, track: IntArray, gnss: Batch | None) -> int:
         """New potential features from rows no legacy feature explains (step 7)."""
         prm = self.params
         rows = np.flatnonzero((r_new >= prm.prune_threshold) & (track < 0))
         if not rows.size:
             return 0
-        from cooploc.particles import Particles, normalize_log_weights, weighted_moments
         s = s_row[rows]
-        mean, cov = weighted_moments(Particles(samples, normalize_log_weights(log_b)[0]))
+        mean, cov = belief.mean, belief.cov
         Hf = self.Hf
         y, C, _ = self._sources(v2f, rows, s_row, mean, cov, gnss)
         Cinv = np.linalg.inv(C)
