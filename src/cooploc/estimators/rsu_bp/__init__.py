@@ -30,7 +30,7 @@ from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
 from cooploc.estimators.rsu_bp.tracking import FeatureTracker, VehicleMessages, group_log_sum, log_normal_rows
-from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
+from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update, symmetrize
 from cooploc.params import Params, param
 from cooploc.particles import (
     Particles,
@@ -57,6 +57,23 @@ DEGENERACY_SHARE = 0.1
 PROPOSAL_SPREAD = 1.5
 #: shares of (that Gaussian, single-association hypotheses, own track) in the proposal
 PROPOSAL_SHARES = (0.5, 0.3, 0.2)
+
+
+def _draw(mean: FloatArray, cov: FloatArray, n: int, rng: np.random.Generator) -> FloatArray:
+    """(S, n, d) samples of N(mean_s, cov_s) (batched matrix products, no einsum)."""
+    z = rng.standard_normal((mean.shape[0], n, mean.shape[1]))
+    return mean[:, None] + z @ np.swapaxes(np.linalg.cholesky(cov), 1, 2)
+
+
+def _moments(samples: FloatArray, log_w: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Weighted mean and covariance like `particles.weighted_moments`, by matrix products."""
+    w = np.exp(log_w)
+    mean = (w[:, None, :] @ samples)[:, 0]
+    centred = samples - mean[:, None]
+    cov = np.swapaxes(centred * w[:, :, None], 1, 2) @ centred
+    d = samples.shape[2]
+    floor = 1e-12 + 1e-9 * np.trace(cov, axis1=1, axis2=2) / d
+    return mean, symmetrize(cov) + floor[:, None, None] * np.eye(d)
 
 
 @dataclass(frozen=True)
@@ -230,8 +247,6 @@ class RsuBP:
         own = self.own.step(frame).vehicles
         self.tracker.predict(steps)
         N = self.params.n_particles
-        samples = sample_gaussians(own.mean, own.cov, N, self.rng).samples        # φχ
-        log_w = np.full((len(own), N), -np.log(N))
         v2f = frame.batches.get("v2f")
         n_rows = len(v2f) if v2f is not None else 0
         track = np.full(n_rows, -1, dtype=np.int64)
@@ -239,18 +254,26 @@ class RsuBP:
         if n_rows and len(own):
             rows = np.flatnonzero(lookup_ids(own.ids, v2f.sensor)[1])
         info: dict[str, Any] = {}
+        mean, cov = own.mean.copy(), own.cov.copy()
+        ess = np.full(len(own), float(N))
         if rows.size:
+            # particles only for vehicles with rows: the others' belief is their own track
+            active = np.unique(lookup_ids(own.ids, v2f.sensor[rows])[0])
+            slot = np.full(len(own), -1, dtype=np.int64)
+            slot[active] = np.arange(active.size)
+            samples = _draw(own.mean[active], own.cov[active], N, self.rng)          # φχ
             messages, track[rows], found = self.tracker.update(
-                own.ids, samples, log_w, own.mean, own.cov, v2f.select(rows), frame.batches.get("gnss"))
+                own.ids, own.mean, own.cov, samples, slot, v2f.select(rows), frame.batches.get("gnss"))
             info.update(found)
-            samples, log_w = self._posterior_samples(own, messages)
-        posterior = Particles(samples, log_w)
-        mean, cov = weighted_moments(posterior)
+            messages = messages.on(slot, active.size)
+            samples, log_w = self._posterior_samples(own.take(active), messages)
+            mean[active], cov[active] = _moments(samples, log_w)
+            ess[active] = effective_sample_size(log_w)
         info["v2f_association"] = track
         info["v2f_track"] = track
         info["v2f_discarded"] = int((track < 0).sum())
-        info["vehicle_ess"] = effective_sample_size(log_w)
-        info["degenerate"] = bool(len(own) and info["vehicle_ess"].min() < DEGENERACY_SHARE * N)
+        info["vehicle_ess"] = ess
+        info["degenerate"] = bool(len(own) and ess.min() < DEGENERACY_SHARE * N)
         features, info["feature_existence"] = self.tracker.estimate()
         vehicles = checked_states(self.name, "vehicle", own.ids, mean, cov)
         return Estimate(vehicles, features, info)
@@ -276,7 +299,7 @@ class RsuBP:
         counts[0] = N - counts[1:].sum()
         # part 1: near; part 2: a hypothesis drawn per particle (near where a vehicle has none)
         samples = np.empty((S, N, dx))
-        samples[:, :counts[0]] = sample_gaussians(near.mean, near.cov, counts[0], self.rng).samples
+        samples[:, :counts[0]] = _draw(near.mean, near.cov, counts[0], self.rng)
         start, stop = counts[0], counts[0] + counts[1]
         first = np.concatenate([[0], np.cumsum(n_hyp)[:-1]])
         order = np.argsort(messages.vehicle, kind="stable")
@@ -290,9 +313,9 @@ class RsuBP:
             drawn = hyp.mean[pick] + (L[pick] @ z[..., None])[..., 0]
         else:
             drawn = np.zeros((S, counts[1], dx))
-        fallback = near.mean[:, None] + np.einsum("sij,snj->sni", np.linalg.cholesky(near.cov), z)
+        fallback = near.mean[:, None] + z @ np.swapaxes(np.linalg.cholesky(near.cov), 1, 2)
         samples[:, start:stop] = np.where(has[:, None, None], drawn, fallback)
-        samples[:, stop:] = sample_gaussians(own.mean, own.cov, N - stop, self.rng).samples
+        samples[:, stop:] = _draw(own.mean, own.cov, N - stop, self.rng)
         # the proposal density at every particle
         log_own = log_normal_rows(samples - own.mean[:, None], own.cov)
         log_near = log_normal_rows(samples - near.mean[:, None], near.cov)

@@ -46,6 +46,7 @@ The feature ids are the filter's own labels (0, 1, …); rows are scored through
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -128,6 +129,11 @@ class VehicleMessages:
     cov: FloatArray
     log_coef: FloatArray
     log_miss: FloatArray
+
+    def on(self, index: IntArray, n_vehicles: int) -> VehicleMessages:
+        """The same messages with vehicle s renumbered index[s] among n_vehicles."""
+        return dataclasses.replace(self, n_vehicles=n_vehicles, vehicle=index[self.vehicle],
+                                   group_vehicle=index[self.group_vehicle])
 
     def log_mu(self, samples: FloatArray) -> FloatArray:
         """Σ_k log μ_{k,s}(x_l) (S, N), each message scaled to a maximum of 1."""
@@ -235,22 +241,23 @@ class FeatureTracker:
         f.mean, f.cov = belief.mean, belief.cov
         f.existence = f.existence * self.params.survival_probability**steps
 
-    def update(self, vehicle_ids: IntArray, samples: FloatArray, log_wx: FloatArray,
-               v_mean: FloatArray, v_cov: FloatArray, v2f: Batch, gnss: Batch | None
+    def update(self, vehicle_ids: IntArray, v_mean: FloatArray, v_cov: FloatArray, samples: FloatArray,
+               slot: IntArray, v2f: Batch, gnss: Batch | None
                ) -> tuple[VehicleMessages, IntArray, dict[str, Any]]:
         """Steps 2–7 for the V2F rows `v2f` of present vehicles.
 
         Parameters
         ----------
-        vehicle_ids (S,), samples (S, N, dx), log_wx (S, N) normalised log φχ, v_mean,
-        v_cov : moments of φχ.
+        vehicle_ids (S,), v_mean, v_cov : the vehicles and their beliefs φχ (Gaussian).
+        samples (A, N, dx) : equally weighted samples of φχ of the vehicles with rows;
+            slot (S,) : the sample set of each vehicle (−1: none).
 
         Returns
         -------
         The messages μ_{k,s} to the vehicles, the track id of every row (−1: none), diagnostics.
         """
         prm, f, p_d = self.params, self.features, self.p_d
-        S, N = log_wx.shape
+        S, N = v_mean.shape[0], samples.shape[1]
         R = len(v2f)
         s_row = lookup_ids(vehicle_ids, v2f.sensor)[0]
         Hx, Hf = self.Hx, self.Hf
@@ -270,9 +277,9 @@ class FeatureTracker:
         # 3. measurement evaluation, pairs (P, N)
         Pf = Hf @ f.cov[k_idx] @ Hf.T if k_idx.size else np.zeros((0, *v2f.cov.shape[1:]))
         inv_L, log_det = _inverse_cholesky(v2f.cov[r_idx] + Pf)
-        resid = (v2f.z[r_idx] - f.mean[k_idx] @ Hf.T)[:, None, :] + samples[s_row[r_idx]] @ Hx.T
+        resid = (v2f.z[r_idx] - f.mean[k_idx] @ Hf.T)[:, None, :] + samples[slot[s_row[r_idx]]] @ Hx.T
         log_l = _log_normal(resid, inv_L, log_det)                                # (P, N)
-        log_beta = log_sum_exp(log_l + log_wx[s_row[r_idx]], axis=1)            # (P,)
+        log_beta = log_sum_exp(log_l, axis=1) - np.log(N)                        # (P,)
         # 4. association per vehicle with rows, padded (V, K_max, M_max)
         log_birth = self._log_birth(v2f, s_row, v_mean, v_cov)
         log_kappa = ex.row_weights(self.clutter, log_birth)
