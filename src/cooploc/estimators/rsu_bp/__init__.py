@@ -266,7 +266,8 @@ class RsuBP:
                 own.ids, own.mean, own.cov, samples, slot, v2f.select(rows), frame.batches.get("gnss"))
             info.update(found)
             messages = messages.on(slot, active.size)
-            samples, log_w = self._posterior_samples(own.take(active), messages)
+            samples, log_w = self._posterior_samples(
+                StateSet(own.ids[active], own.mean[active], own.cov[active]), messages)
             mean[active], cov[active] = _moments(samples, log_w)
             ess[active] = effective_sample_size(log_w)
         info["v2f_association"] = track
