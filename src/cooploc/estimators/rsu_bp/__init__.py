@@ -15,6 +15,15 @@ above the known-association bound.
 The messages written out, the complexity, and the choices the paper leaves open (vehicle
 births, feature initialisation, normalised messages, the shrinkage move after
 resampling, vanishing messages, ignored rows): docs/rsu_bp.md.
+
+Features not known in advance (`features`: "unknown", or "auto" on a setup without a
+feature prior, e.g. the sumo-* and brambilla-* scenarios): potential features with
+existence probabilities, births, survival, misses only within the sensing range,
+pruning (Meyer et al. 2018) in `rsu_bp.tracking` (existence weights in
+`rsu_bp.existence`); the paper's algorithm above is its special case with K known
+features, P_D = 1 and no clutter, and runs unchanged when the setup has a prior. The
+vehicles' particles are then drawn from a proposal near the posterior
+(`RsuBP._posterior_samples`).
 """
 
 from __future__ import annotations
@@ -29,8 +38,9 @@ from cooploc.association import association_weights, bp_association, decide, pad
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
-from cooploc.estimators.rsu_bp.tracking import FeatureTracker, VehicleMessages, group_log_sum, log_normal_rows
-from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update, symmetrize
+from cooploc.estimators.rsu_bp.tracking import FeatureTracker
+from cooploc.estimators.rsu_bp.vehicles import draw, moments, posterior_samples
+from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
 from cooploc.params import Params, param
 from cooploc.particles import (
     Particles,
@@ -53,29 +63,6 @@ __all__ = ["RsuBP", "RsuBPParams"]
 
 #: ESS below this share of N_p is reported as degenerate in `Estimate.info`.
 DEGENERACY_SHARE = 0.1
-#: the unknown-feature model draws vehicle particles from its Gaussian proposal widened by this
-PROPOSAL_SPREAD = 1.5
-#: shares of (that Gaussian, single-association hypotheses, own track) in the proposal
-PROPOSAL_SHARES = (0.5, 0.3, 0.2)
-
-
-def _draw(mean: FloatArray, cov: FloatArray, n: int, rng: np.random.Generator) -> FloatArray:
-    """(S, n, d) samples of N(mean_s, cov_s) (batched matrix products, no einsum)."""
-    z = rng.standard_normal((mean.shape[0], n, mean.shape[1]))
-    return mean[:, None] + z @ np.swapaxes(np.linalg.cholesky(cov), 1, 2)
-
-
-def _moments(samples: FloatArray, log_w: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Weighted mean and covariance like `particles.weighted_moments`, by matrix products."""
-    w = np.exp(log_w)
-    mean = (w[:, None, :] @ samples)[:, 0]
-    centred = samples - mean[:, None]
-    cov = np.swapaxes(centred * w[:, :, None], 1, 2) @ centred
-    d = samples.shape[2]
-    floor = 1e-12 + 1e-9 * np.trace(cov, axis1=1, axis2=2) / d
-    return mean, symmetrize(cov) + floor[:, None, None] * np.eye(d)
-
-
 @dataclass(frozen=True)
 class RsuBPParams(Params):
     """Parameters of `rsu-bp` (defaults: Fröhle 2018 §V-A).
@@ -261,14 +248,14 @@ class RsuBP:
             active = np.unique(lookup_ids(own.ids, v2f.sensor[rows])[0])
             slot = np.full(len(own), -1, dtype=np.int64)
             slot[active] = np.arange(active.size)
-            samples = _draw(own.mean[active], own.cov[active], N, self.rng)          # φχ
+            samples = draw(own.mean[active], own.cov[active], N, self.rng)          # φχ
             messages, track[rows], found = self.tracker.update(
                 own.ids, own.mean, own.cov, samples, slot, v2f.select(rows), frame.batches.get("gnss"))
             info.update(found)
             messages = messages.on(slot, active.size)
-            samples, log_w = self._posterior_samples(
-                StateSet(own.ids[active], own.mean[active], own.cov[active]), messages)
-            mean[active], cov[active] = _moments(samples, log_w)
+            samples, log_w = posterior_samples(
+                StateSet(own.ids[active], own.mean[active], own.cov[active]), messages, N, self.rng)
+            mean[active], cov[active] = moments(samples, log_w)
             ess[active] = effective_sample_size(log_w)
         info["v2f_association"] = track
         info["v2f_track"] = track
@@ -278,57 +265,6 @@ class RsuBP:
         features, info["feature_existence"] = self.tracker.estimate()
         vehicles = checked_states(self.name, "vehicle", own.ids, mean, cov)
         return Estimate(vehicles, features, info)
-
-    def _posterior_samples(self, own: StateSet, messages: VehicleMessages) -> tuple[FloatArray, FloatArray]:
-        """Particles of b_s = φ_s χ_s Π_k μ_{k,s} by defensive importance sampling.
-
-        Drawn from the own track alone, a 0.3 m posterior inside an 8 m fix keeps a
-        handful of particles; drawn from one Gaussian (`VehicleMessages.gaussian`) alone, a
-        wrong dominant association is never corrected. The proposal mixes three parts
-        (`PROPOSAL_SHARES`; Hesterberg 1995, defensive importance sampling): that
-        Gaussian widened by `PROPOSAL_SPREAD`; the single-association hypotheses
-        (`VehicleMessages.hypotheses`, equal shares per vehicle); the own track.
-        """
-        N = self.params.n_particles
-        S, dx = own.mean.shape
-        near = messages.gaussian(own.mean, own.cov)
-        near = Gaussians(near.mean, PROPOSAL_SPREAD**2 * near.cov)
-        hyp = messages.hypotheses(own.mean, own.cov)
-        n_hyp = np.bincount(messages.vehicle, minlength=S)
-        shares = np.array(PROPOSAL_SHARES)
-        counts = np.round(shares * N).astype(int)
-        counts[0] = N - counts[1:].sum()
-        # part 1: near; part 2: a hypothesis drawn per particle (near where a vehicle has none)
-        samples = np.empty((S, N, dx))
-        samples[:, :counts[0]] = _draw(near.mean, near.cov, counts[0], self.rng)
-        start, stop = counts[0], counts[0] + counts[1]
-        first = np.concatenate([[0], np.cumsum(n_hyp)[:-1]])
-        order = np.argsort(messages.vehicle, kind="stable")
-        offset = (self.rng.random((S, counts[1])) * n_hyp[:, None]).astype(np.int64)
-        pick = order[np.minimum(first[:, None] + offset, max(order.size - 1, 0))] \
-            if order.size else np.zeros((S, counts[1]), np.int64)
-        has = n_hyp > 0
-        z = self.rng.standard_normal((S, counts[1], dx))
-        if messages.vehicle.size:
-            L = np.linalg.cholesky(hyp.cov)
-            drawn = hyp.mean[pick] + (L[pick] @ z[..., None])[..., 0]
-        else:
-            drawn = np.zeros((S, counts[1], dx))
-        fallback = near.mean[:, None] + z @ np.swapaxes(np.linalg.cholesky(near.cov), 1, 2)
-        samples[:, start:stop] = np.where(has[:, None, None], drawn, fallback)
-        samples[:, stop:] = _draw(own.mean, own.cov, N - stop, self.rng)
-        # the proposal density at every particle
-        log_own = log_normal_rows(samples - own.mean[:, None], own.cov)
-        log_near = log_normal_rows(samples - near.mean[:, None], near.cov)
-        log_hyp = log_near.copy()
-        if messages.vehicle.size:
-            per_pair = log_normal_rows(samples[messages.vehicle] - hyp.mean[:, None], hyp.cov)
-            summed = group_log_sum(per_pair[order], messages.vehicle[order], S)
-            log_hyp = np.where(has[:, None], summed - np.log(np.maximum(n_hyp, 1))[:, None], log_near)
-        with np.errstate(divide="ignore"):
-            log_q = np.logaddexp.reduce(np.stack([np.log(shares[0]) + log_near, np.log(shares[1]) + log_hyp,
-                                                  np.log(shares[2]) + log_own]), axis=0)
-        return samples, normalize_log_weights(log_own - log_q + messages.log_mu(samples))[0]
 
     # ------------------------------------------------------------ vehicles
 

@@ -4,49 +4,52 @@ The paper's model has K known features that every vehicle may see. A city has fe
 that appear and disappear and that each vehicle sees only within its sensing range, so
 here the feature set is a multi-Bernoulli set of *potential features* (Meyer et al.,
 "Message passing algorithms for scalable multitarget tracking", Proc. IEEE 2018), each a
-Gaussian belief with an existence probability r (`existence` holds the weights). One step,
-after the vehicles' prediction φ_s and GNSS likelihood χ_s (Fröhle eqs. (8), (11)):
+Gaussian belief with an existence probability r (`existence` holds the weights). The
+vehicles' beliefs φ_s χ_s (Fröhle eqs. (8), (11)) are their own GNSS tracks (the
+estimator runs `gnss-kf` for them), sampled afresh each step (N_p particles per vehicle
+with V2F rows). One step:
 
-1. **Prediction** of every potential feature through the feature motion model (Fröhle (10));
-   r⁻ = p_s r with the survival probability p_s.
+1. **Prediction** of every potential feature through the feature motion model (Fröhle
+   (10)); r⁻ = p_s r with the survival probability p_s.
 2. **Gating.** A feature–row pair enters the BP only if the row's predicted residual
    z − (H f̄ − H x̄_s) lies inside the `gate_probability` ellipsoid of W + H P_f Hᵀ + H P_s Hᵀ
    (candidates from a KD-tree over feature positions): the work is linear in the rows
    and the features near them, not in all pairs.
-3. **Measurement evaluation** (Fröhle (14)) for gated pairs: β_{k,s}(m) = Σ_l (φχ)_{s,l}
-   N(z_m; H f̄_k − H x_l, W + H P_k Hᵀ), the feature belief integrated in closed form
-   (one sum over the vehicle particles instead of the paper's N_p² pair kernel).
+3. **Measurement evaluation** (Fröhle (14)) for gated pairs: β_{k,s}(m) = (1/N_p) Σ_l
+   N(z_m; H f̄_k − H x_l, W + H P_k Hᵀ) over the samples x_l of φχ, the feature belief
+   integrated in closed form (one sum over particles instead of the N_p² pair kernel).
 4. **Data association with existence** per vehicle (`existence`: ψ, ψ(0), κ with the
    birth intensity λ_b; `association.bp_association`, Fröhle (15)–(20)). A feature out
    of the vehicle's range R_s (`RelativePosition.max_range`) has P(in range) ≈ 0 and
    so no miss; a feature in range with no gated row is a miss for that vehicle.
-5. **Feature update** (Fröhle (21), one correction iteration): vehicle s's message to
-   feature k, moment-matched to a Gaussian in information form — each row's component
-   weighted by its probability given that k exists. Its source (`feature_update`):
-   "fix" — the first time s sees k, s's predicted belief φχ; afterwards only s's GNSS
-   fix of this step (z + g, W + R); "belief" — φχ every step, as the paper. φ_s already
-   carries k's earlier messages, so "belief" returns them to k at every step (the loop
-   through time of the factor graph): their information compounds and a feature freezes
-   on its first estimates. The fix is new information each step.
-6. **Messages to the vehicles** (Fröhle (23)): μ_{k,s}(x_l) = (1 − r⁻ P_D p_{k,s}) +
-   r⁻ P_D Σ_m ν_{m→k} N(z_m; H f̃ − H x_l, W + H P̃ Hᵀ), with (f̃, P̃) the feature's
-   belief without s's message of this step (extrinsic, Fröhle (22)); vehicle beliefs
-   b_s = φ_s χ_s Π_k μ_{k,s} (26).
+5. **Feature update** (Fröhle (21)): vehicle s's message to feature k, moment-matched to
+   a Gaussian in information form, each row weighted by its probability given that k
+   exists. Its content is s's GNSS fix of this step through the row, y = z + g with
+   covariance W + R (where the fix observes every V2F component; else s's belief). The
+   paper's message carries φ_s, which holds k's own earlier messages and s's earlier
+   fixes: sent every step, that information compounds through the loop in time and a
+   feature freezes on its first estimate. The fix is new information at every step,
+   so a feature's belief is a consistent fusion of independent fixes.
+6. **Messages to the vehicles** (Fröhle (23)): μ_{k,s}(x) = (1 − r⁻ P_D p_{k,s}) +
+   r⁻ P_D Σ_m ν_{m→k} N(z_m; H f̃ − H x, W + H P̃ Hᵀ), with (f̃, P̃) the feature's belief
+   without everything s ever sent it (extrinsic, Fröhle (22); `VehicleMessages`). The
+   vehicle's belief b_s = φ_s χ_s Π_k μ_{k,s} (26) is not carried into its track:
+   next step's messages carry the features' information again.
 7. **Existence** of legacy features and **births**: every row that no legacy feature
    explains starts a potential feature with r = P(not legacy) λ_b/κ, its state from the
-   vehicle's belief and the row. Births of one step from different vehicles within the
-   gate of each other are one feature (an approximation of Meyer's sequential
-   processing of sensors, in which the second vehicle would see the first one's new
-   feature as legacy). Features with r < `prune_threshold` are dropped; those with
-   r ≥ `existence_threshold` are reported.
+   row and the vehicle's fix. Births of one step from different vehicles within the
+   gate of each other (judged on the vehicles' beliefs) are one feature — an
+   approximation of Meyer's sequential processing of sensors, in which the second
+   vehicle would see the first one's new feature as legacy. Features with
+   r < `prune_threshold` are dropped; those with r ≥ `existence_threshold` are reported.
 
 The feature ids are the filter's own labels (0, 1, …); rows are scored through
-``info["v2f_track"]`` (`metrics.track_identities`).
+``info["v2f_track"]`` (`metrics.track_identities`). Complexity per step: O(P N_p d²)
+for P gated pairs, plus O(S log F) for the KD-tree queries of S vehicles and F features.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -54,14 +57,12 @@ import numpy as np
 
 from cooploc.association import bp_association, padded_groups
 from cooploc.estimators.rsu_bp import existence as ex
+from cooploc.estimators.rsu_bp.vehicles import VehicleMessages, group_log_sum, log_normal_rows
 from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize
 from cooploc.particles import log_sum_exp
 from cooploc.types import Batch, FloatArray, IntArray, Setup, StateSet, lookup_ids
 
 __all__ = ["FeatureTracker"]
-
-_LOG_2PI = float(np.log(2.0 * np.pi))
-
 
 @dataclass
 class _Features:
@@ -75,118 +76,6 @@ class _Features:
     def keep(self, mask: np.ndarray) -> None:
         self.ids, self.mean = self.ids[mask], self.mean[mask]
         self.cov, self.existence = self.cov[mask], self.existence[mask]
-
-
-def _inverse_cholesky(cov: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """L⁻¹ (…, d, d) with L Lᵀ = cov, and log det cov (…,)."""
-    L = np.linalg.cholesky(cov)
-    eye = np.broadcast_to(np.eye(cov.shape[-1]), cov.shape)
-    return np.linalg.solve(L, eye), 2.0 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(-1)
-
-
-def _log_normal(residual: FloatArray, inv_chol: FloatArray, log_det: FloatArray) -> FloatArray:
-    """log N(r; 0, C) for residuals (P, N, d), one covariance per pair (P): L⁻¹ (P, d, d)."""
-    white = residual @ np.swapaxes(inv_chol, 1, 2)
-    d = residual.shape[-1]
-    return -0.5 * (d * _LOG_2PI + log_det[:, None] + np.einsum("pnd,pnd->pn", white, white))
-
-
-def log_normal_rows(residual: FloatArray, cov: FloatArray) -> FloatArray:
-    """log N(r; 0, C_p) for residuals (P, N, d) and one covariance per row (P, d, d)."""
-    return _log_normal(residual, *_inverse_cholesky(cov))
-
-
-def group_log_sum(values: FloatArray, group: IntArray, n_groups: int) -> FloatArray:
-    """log Σ exp over rows of the same group (rows sorted by group), (n_groups, …); −inf if none."""
-    out = np.full((n_groups, *values.shape[1:]), -np.inf)
-    if not values.shape[0]:
-        return out
-    starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
-    top = np.maximum.reduceat(values, starts, axis=0)
-    safe = np.where(np.isfinite(top), top, 0.0)
-    counts = np.diff(np.r_[starts, values.shape[0]])
-    with np.errstate(divide="ignore"):
-        out[group[starts]] = safe + np.log(np.add.reduceat(np.exp(values - np.repeat(safe, counts, axis=0)),
-                                                           starts, axis=0))
-    return out
-
-
-@dataclass
-class VehicleMessages:
-    """The messages μ_{k,s} of one step (step 6), to evaluate at any vehicle particles.
-
-    Per gated row–feature pair p: the vehicle s_p, its (s, k) group, the residual offset
-    a_p = z − H f̃ (so the residual at x is a_p + H x), covariance W + H P̃ Hᵀ and log
-    coefficient log(r⁻ P_D ν); per group the miss term log(1 − r⁻ P_D p_{k,s}).
-    """
-
-    n_vehicles: int
-    Hx: FloatArray
-    vehicle: IntArray
-    group: IntArray
-    group_vehicle: IntArray
-    offset: FloatArray
-    cov: FloatArray
-    log_coef: FloatArray
-    log_miss: FloatArray
-
-    def on(self, index: IntArray, n_vehicles: int) -> VehicleMessages:
-        """The same messages with vehicle s renumbered index[s] among n_vehicles."""
-        return dataclasses.replace(self, n_vehicles=n_vehicles, vehicle=index[self.vehicle],
-                                   group_vehicle=index[self.group_vehicle])
-
-    def log_mu(self, samples: FloatArray) -> FloatArray:
-        """Σ_k log μ_{k,s}(x_l) (S, N), each message scaled to a maximum of 1."""
-        S, N = samples.shape[0], samples.shape[1]
-        out = np.zeros((S, N))
-        if not self.vehicle.size:
-            return out
-        inv_L, log_det = _inverse_cholesky(self.cov)
-        resid = self.offset[:, None, :] + samples[self.vehicle] @ self.Hx.T
-        log_l = _log_normal(resid, inv_L, log_det)
-        log_msg = group_log_sum(self.log_coef[:, None] + log_l, self.group, self.log_miss.size)
-        log_msg = np.logaddexp(self.log_miss[:, None], log_msg)
-        np.add.at(out, self.group_vehicle, log_msg - log_msg.max(axis=1, keepdims=True))
-        return out
-
-    def hypotheses(self, mean: FloatArray, cov: FloatArray) -> Gaussians:
-        """Per pair p, the vehicle's belief updated with "row p came from its feature" alone.
-
-        Each is where the vehicle must be if that association holds; a vehicle with a wide
-        belief and several rows is localised by the hypotheses on which the rows agree.
-        """
-        Hx = self.Hx
-        prior_cov = cov[self.vehicle]
-        S = self.cov + Hx @ prior_cov @ Hx.T
-        gain = np.linalg.solve(S, Hx @ prior_cov).transpose(0, 2, 1)               # P Hᵀ S⁻¹
-        innovation = -self.offset - mean[self.vehicle] @ Hx.T                       # H x = −a
-        post_mean = mean[self.vehicle] + np.einsum("pij,pj->pi", gain, innovation)
-        post_cov = symmetrize(prior_cov - gain @ Hx @ prior_cov)
-        return Gaussians(post_mean, post_cov)
-
-    def gaussian(self, mean: FloatArray, cov: FloatArray) -> Gaussians:
-        """The vehicles' beliefs times each message's dominant component, in closed form.
-
-        Every row enters as x ≈ −H⁻ a_p (covariance W + H P̃ Hᵀ) weighted by its share of
-        the message at the belief's mean: a Gaussian close to the posterior, from which
-        the particles are drawn (the importance weights then correct the rest).
-        """
-        if not self.vehicle.size:
-            return Gaussians(mean, cov)
-        Hx = self.Hx
-        Cinv = np.linalg.inv(self.cov)
-        resid = self.offset + mean[self.vehicle] @ Hx.T
-        log_l = -0.5 * np.einsum("pi,pij,pj->p", resid, Cinv, resid) \
-            - 0.5 * np.linalg.slogdet(self.cov)[1]
-        terms = self.log_coef + log_l
-        total = np.logaddexp(self.log_miss[self.group], group_log_sum(terms, self.group,
-                                                                       self.log_miss.size)[self.group])
-        share = np.exp(terms - total)
-        lam, eta = np.linalg.inv(cov), np.zeros_like(mean)
-        eta = np.einsum("sij,sj->si", lam, mean)
-        np.add.at(lam, self.vehicle, np.einsum("ji,pjk,kl->pil", Hx, Cinv, Hx) * share[:, None, None])
-        np.add.at(eta, self.vehicle, np.einsum("ji,pjk,pk->pi", Hx, Cinv, -self.offset) * share[:, None])
-        return from_information(symmetrize(lam), eta)
 
 
 class FeatureTracker:
@@ -276,9 +165,8 @@ class FeatureTracker:
         r_minus = f.existence
         # 3. measurement evaluation, pairs (P, N)
         Pf = Hf @ f.cov[k_idx] @ Hf.T if k_idx.size else np.zeros((0, *v2f.cov.shape[1:]))
-        inv_L, log_det = _inverse_cholesky(v2f.cov[r_idx] + Pf)
         resid = (v2f.z[r_idx] - f.mean[k_idx] @ Hf.T)[:, None, :] + samples[slot[s_row[r_idx]]] @ Hx.T
-        log_l = _log_normal(resid, inv_L, log_det)                                # (P, N)
+        log_l = log_normal_rows(resid, v2f.cov[r_idx] + Pf)                       # (P, N)
         log_beta = log_sum_exp(log_l, axis=1) - np.log(N)                        # (P,)
         # 4. association per vehicle with rows, padded (V, K_max, M_max)
         log_birth = self._log_birth(v2f, s_row, v_mean, v_cov)
@@ -444,8 +332,7 @@ class FeatureTracker:
         c = (v_mean @ self.Hx.T)[:, rest][s_row]
         C = ((self.Hx @ v_cov @ self.Hx.T)[:, rest][:, :, rest][s_row]
              + v2f.cov[:, rest][:, :, rest] + self.params.birth_velocity_std**2 * np.eye(rest.size))
-        inv_L, log_det = _inverse_cholesky(C)
-        return base + _log_normal((v2f.z[:, rest] + c)[:, None, :], inv_L, log_det)[:, 0]
+        return base + log_normal_rows((v2f.z[:, rest] + c)[:, None, :], C)[:, 0]
 
     def _sources(self, v2f: Batch, rows: IntArray, s_row: IntArray, v_mean: FloatArray,
                  v_cov: FloatArray, gnss: Batch | None) -> tuple[FloatArray, FloatArray, np.ndarray]:
