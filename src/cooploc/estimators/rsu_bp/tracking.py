@@ -57,7 +57,12 @@ import numpy as np
 
 from cooploc.association import bp_association, padded_groups
 from cooploc.estimators.rsu_bp import existence as ex
-from cooploc.estimators.rsu_bp.vehicles import VehicleMessages, group_log_sum, log_normal_rows
+from cooploc.estimators.rsu_bp.vehicles import (
+    VehicleMessages,
+    group_log_sum,
+    log_gauss_groups,
+    log_normal_rows,
+)
 from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize
 from cooploc.particles import log_sum_exp
 from cooploc.types import Batch, FloatArray, IntArray, Setup, StateSet, lookup_ids
@@ -165,8 +170,9 @@ class FeatureTracker:
         r_minus = f.existence
         # 3. measurement evaluation, pairs (P, N)
         Pf = Hf @ f.cov[k_idx] @ Hf.T if k_idx.size else np.zeros((0, *v2f.cov.shape[1:]))
-        resid = (v2f.z[r_idx] - f.mean[k_idx] @ Hf.T)[:, None, :] + samples[slot[s_row[r_idx]]] @ Hx.T
-        log_l = log_normal_rows(resid, v2f.cov[r_idx] + Pf)                       # (P, N)
+        each = np.arange(r_idx.size)
+        log_l = log_gauss_groups(v2f.z[r_idx] - f.mean[k_idx] @ Hf.T, v2f.cov[r_idx] + Pf,
+                                 np.zeros(r_idx.size), slot[s_row[r_idx]], each, r_idx.size, samples, Hx)
         log_beta = log_sum_exp(log_l, axis=1) - np.log(N)                        # (P,)
         # 4. association per vehicle with rows, padded (V, K_max, M_max)
         log_birth = self._log_birth(v2f, s_row, v_mean, v_cov)

@@ -43,6 +43,31 @@ def log_normal_rows(residual: FloatArray, cov: FloatArray) -> FloatArray:
     return _log_normal(residual, *_inverse_cholesky(cov))
 
 
+def log_gauss_groups(offset: FloatArray, cov: FloatArray, log_coef: FloatArray, sample_of: IntArray,
+                     group: IntArray, n_groups: int, samples: FloatArray, H: FloatArray) -> FloatArray:
+    """log Σ_{p ∈ g} exp(c_p) N(a_p + H x_l; 0, C_p) for every group g and particle l, (G, N).
+
+    Pair p: residual offset a_p (P, d), covariance C_p (P, d, d), log coefficient c_p,
+    particle set `sample_of[p]` of `samples` (A, N, dx), group `group[p]` (−inf rows
+    for groups without pairs). One compiled pass (`rsu_bp._kernels`), nothing of size
+    pairs × particles stored.
+    """
+    out = np.full((n_groups, samples.shape[1]), -np.inf)
+    if not offset.shape[0]:
+        return out
+    from cooploc.estimators.rsu_bp._kernels import group_log_gauss
+    order = np.argsort(group, kind="stable")
+    inv_chol, log_det = _inverse_cholesky(cov[order])
+    d = offset.shape[1]
+    coef = log_coef[order] - 0.5 * (d * _LOG_2PI + log_det)
+    counts = np.bincount(group, minlength=n_groups)
+    starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    group_log_gauss(np.ascontiguousarray(offset[order]), np.ascontiguousarray(inv_chol), coef,
+                    sample_of[order].astype(np.int64), starts, np.ascontiguousarray(samples),
+                    np.ascontiguousarray(H, dtype=float), out)
+    return out
+
+
 def group_log_sum(values: FloatArray, group: IntArray, n_groups: int) -> FloatArray:
     """log Σ exp over rows of the same group (rows sorted by group), (n_groups, …); −inf if none."""
     out = np.full((n_groups, *values.shape[1:]), -np.inf)
@@ -88,10 +113,8 @@ class VehicleMessages:
         out = np.zeros((S, N))
         if not self.vehicle.size:
             return out
-        inv_L, log_det = _inverse_cholesky(self.cov)
-        resid = self.offset[:, None, :] + samples[self.vehicle] @ self.Hx.T
-        log_l = _log_normal(resid, inv_L, log_det)
-        log_msg = group_log_sum(self.log_coef[:, None] + log_l, self.group, self.log_miss.size)
+        log_msg = log_gauss_groups(self.offset, self.cov, self.log_coef, self.vehicle, self.group,
+                                   self.log_miss.size, samples, self.Hx)
         log_msg = np.logaddexp(self.log_miss[:, None], log_msg)
         np.add.at(out, self.group_vehicle, log_msg - log_msg.max(axis=1, keepdims=True))
         return out
@@ -200,12 +223,13 @@ def posterior_samples(own: StateSet, messages: VehicleMessages, n_particles: int
     samples[:, start:stop] = np.where(has[:, None, None], drawn, fallback)
     samples[:, stop:] = draw(own.mean, own.cov, N - stop, rng)
     # the proposal density at every particle
-    log_own = log_normal_rows(samples - own.mean[:, None], own.cov)
-    log_near = log_normal_rows(samples - near.mean[:, None], near.cov)
+    each, eye = np.arange(S), np.eye(dx)
+    log_own = log_gauss_groups(-own.mean, own.cov, np.zeros(S), each, each, S, samples, eye)
+    log_near = log_gauss_groups(-near.mean, near.cov, np.zeros(S), each, each, S, samples, eye)
     log_hyp = log_near.copy()
     if messages.vehicle.size:
-        per_pair = log_normal_rows(samples[messages.vehicle] - hyp.mean[:, None], hyp.cov)
-        summed = group_log_sum(per_pair[order], messages.vehicle[order], S)
+        summed = log_gauss_groups(-hyp.mean, hyp.cov, np.zeros(len(hyp)), messages.vehicle,
+                                  messages.vehicle, S, samples, eye)
         log_hyp = np.where(has[:, None], summed - np.log(np.maximum(n_hyp, 1))[:, None], log_near)
     with np.errstate(divide="ignore"):
         log_q = np.logaddexp.reduce(np.stack([np.log(shares[0]) + log_near, np.log(shares[1]) + log_hyp,
