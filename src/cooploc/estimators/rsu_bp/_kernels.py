@@ -20,7 +20,7 @@ import numpy as np
 __all__ = ["group_log_gauss"]
 
 
-@numba.njit(parallel=True, fastmath=True, cache=True)
+@numba.njit(parallel=True, cache=True)  # no fastmath: the sums start at −inf
 def group_log_gauss(offset: np.ndarray, inv_chol: np.ndarray, log_coef: np.ndarray,
                     sample_of: np.ndarray, starts: np.ndarray, samples: np.ndarray, H: np.ndarray,
                     out: np.ndarray) -> None:
