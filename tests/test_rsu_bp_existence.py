@@ -122,3 +122,24 @@ def test_unknown_features_run_finite_with_entering_and_leaving_vehicles(override
         assert out.info["v2f_track"].shape == (len(frame.batches["v2f"]),)
     assert len(out.features) > 0
     assert (out.info["feature_existence"] >= 0.5).all()
+
+
+def test_grouped_gaussian_log_sums_match_numpy() -> None:
+    from cooploc.estimators.rsu_bp.vehicles import log_gauss_groups
+    from cooploc.gaussian import gaussian_logpdf
+
+    rng = np.random.default_rng(5)
+    P, N, A, d = 9, 50, 3, 2
+    samples = rng.normal(size=(A, N, 4))
+    H = np.eye(4)[:d]
+    offset = rng.normal(size=(P, d))
+    root = rng.normal(size=(P, d, d))
+    cov = root @ np.swapaxes(root, 1, 2) + np.eye(d)
+    coef = rng.normal(size=P)
+    sample_of = rng.integers(0, A, P)
+    group = np.array([3, 0, 0, 2, 3, 3, 0, 5, 2])              # unsorted; groups 1 and 4 empty
+    got = log_gauss_groups(offset, cov, coef, sample_of, group, 6, samples, H)
+    each = coef[:, None] + gaussian_logpdf(offset[:, None] + samples[sample_of] @ H.T, cov[:, None])
+    for g in range(6):
+        want = np.logaddexp.reduce(each[group == g], axis=0) if (group == g).any() else np.full(N, -np.inf)
+        np.testing.assert_allclose(got[g], want, rtol=1e-10, atol=1e-10)
