@@ -6,8 +6,7 @@ particle set `sample_of[p]`:
 
     out[g, l] = log Σ_{p ∈ g} exp(c_p − ½ ‖L_p⁻¹ (a_p + H x_l)‖²),
 
-accumulated as a running log-sum-exp, so no (pairs × particles) array is stored. The
-`prange` loop runs over groups; each group writes only its own row.
+accumulated as a running log-sum-exp, so no (pairs × particles) array is stored.
 """
 
 from __future__ import annotations
@@ -20,39 +19,57 @@ import numpy as np
 __all__ = ["group_log_gauss"]
 
 
-@numba.njit(parallel=True, cache=True)  # no fastmath: the sums start at −inf
+@numba.njit(cache=True)  # serial: one thread per worker process; no fastmath: sums start at −inf
 def group_log_gauss(offset: np.ndarray, inv_chol: np.ndarray, log_coef: np.ndarray,
                     sample_of: np.ndarray, starts: np.ndarray, samples: np.ndarray, H: np.ndarray,
                     out: np.ndarray) -> None:
-    """Fill out (G, N) as in the module docstring; `starts` (G + 1,) delimits the groups."""
+    """Fill out (G, N) as in the module docstring; `starts` (G + 1,) delimits the groups.
+
+    The loops over particles are innermost and contiguous, so they vectorise.
+    """
     G = starts.size - 1
     N, dx = samples.shape[1], samples.shape[2]
     d = offset.shape[1]
-    for g in numba.prange(G):
-        r = np.empty(d)
-        for l in range(N):
-            out[g, l] = -np.inf
+    r = np.empty((d, N))
+    w = np.empty(N)
+    q = np.empty(N)
+    x = np.empty((dx, N))
+    for g in range(G):
+        first = True
         for p in range(starts[g], starts[g + 1]):
             a = sample_of[p]
-            c = log_coef[p]
-            single = starts[g + 1] - starts[g] == 1
+            for e in range(dx):
+                for l in range(N):
+                    x[e, l] = samples[a, l, e]
+            for j in range(d):
+                for l in range(N):
+                    r[j, l] = offset[p, j]
+                for e in range(dx):
+                    h = H[j, e]
+                    if h != 0.0:
+                        for l in range(N):
+                            r[j, l] += h * x[e, l]
             for l in range(N):
-                for j in range(d):
-                    s = offset[p, j]
-                    for e in range(dx):
-                        s += H[j, e] * samples[a, l, e]
-                    r[j] = s
-                q = 0.0
-                for i in range(d):
-                    w = 0.0
-                    for j in range(i + 1):
-                        w += inv_chol[p, i, j] * r[j]
-                    q += w * w
-                v = c - 0.5 * q
-                cur = out[g, l]
-                if single or cur == -np.inf:
-                    out[g, l] = v
-                elif v > cur:
-                    out[g, l] = v + math.log1p(math.exp(cur - v))
-                else:
-                    out[g, l] = cur + math.log1p(math.exp(v - cur))
+                q[l] = 0.0
+            for i in range(d):
+                for l in range(N):
+                    w[l] = 0.0
+                for j in range(i + 1):
+                    c = inv_chol[p, i, j]
+                    for l in range(N):
+                        w[l] += c * r[j, l]
+                for l in range(N):
+                    q[l] += w[l] * w[l]
+            c0 = log_coef[p]
+            if first:
+                for l in range(N):
+                    out[g, l] = c0 - 0.5 * q[l]
+                first = False
+            else:
+                for l in range(N):
+                    v = c0 - 0.5 * q[l]
+                    cur = out[g, l]
+                    if v > cur:
+                        out[g, l] = v + math.log1p(math.exp(cur - v))
+                    else:
+                        out[g, l] = cur + math.log1p(math.exp(v - cur))
