@@ -23,7 +23,7 @@ pruning (Meyer et al. 2018) in `rsu_bp.tracking` (existence weights in
 `rsu_bp.existence`); the paper's algorithm above is its special case with K known
 features, P_D = 1 and no clutter, and runs unchanged when the setup has a prior. The
 vehicles' particles are then drawn from a proposal near the posterior
-(`RsuBP._posterior_samples`).
+(`rsu_bp.vehicles.posterior_samples`).
 """
 
 from __future__ import annotations
