@@ -20,10 +20,10 @@ Features not known in advance (`features`: "unknown", or "auto" on a setup witho
 feature prior, e.g. the sumo-* and brambilla-* scenarios): potential features with
 existence probabilities, births, survival, misses only within the sensing range,
 pruning (Meyer et al. 2018) in `rsu_bp.tracking` (existence weights in
-`rsu_bp.existence`); the paper's algorithm above is its special case with K known
-features, P_D = 1 and no clutter, and runs unchanged when the setup has a prior. The
-vehicles' particles are then drawn from a proposal near the posterior
-(`rsu_bp.vehicles.posterior_samples`).
+`rsu_bp.existence`). It is a second code path: with a feature prior (K known) the
+paper's algorithm above runs unchanged, bit for bit. In the unknown-feature path the
+vehicles' beliefs φχ are their own GNSS tracks and their particles are drawn from a
+proposal near the posterior (`rsu_bp.vehicles.posterior_samples`).
 """
 
 from __future__ import annotations
