@@ -21,6 +21,18 @@ Measured in one run, on the same machine and data:
    - `pair_kernel_numpy` — a plain NumPy broadcast in float64.
    Each is the best of `repeats` calls after one warm-up call (numba compilation).
 
+With ``--sumo`` (features not known in advance, issues 14 and 17), instead:
+
+3. Every ``sumo-*`` preset at its default duration (one run, seed 1): vehicle RMSE of
+   `rsu-bp` (N_p = 600) and `gnss-kf`, and of `oracle-kf` with ``--oracle`` (slow: its
+   dense covariance); the ratios rsu-bp / gnss-kf (target: at most 1) and rsu-bp /
+   oracle-kf (target: at most 1.3); steps/s inside `step` (target: 10 on
+   sumo-braunschweig-tlr) beside gnss-kf's measured in the same process; peak traced
+   memory of 20 steps.
+4. Time per step against vehicles on ``brambilla-crossroad --set n_vehicles=N`` (32
+   steps; ``--vehicles``), with the fitted growth exponent of rsu-bp (1: linear) and the
+   time at 200 vehicles (target: 0.1 s).
+
 The machine is shared: the load average at the start and end is recorded with the
 versions and platform (`common.environment()`), since numbers from a loaded 2-core
 machine are lower bounds.
@@ -42,6 +54,7 @@ from common import environment, new_estimator, recording, run_steps, step_memory
 from cooploc.estimators.rsu_bp import RsuBPParams
 from cooploc.metrics import VEHICLE, evaluate, per_entity_rmse
 from cooploc.particles import pair_kernel, pair_kernel_log_sum, pair_kernel_numpy
+from cooploc.registry import presets as presets_by_name
 
 ORACLE_TARGET = 1.25    # vehicle-1 RMSE of rsu-bp within 25 % of oracle-kf
 SPEED_TARGET = 20.0     # steps per second at N_p = 600
@@ -126,13 +139,91 @@ def kernel_throughput(n_particles: int, repeats: int, numpy_particles: int) -> d
     return out
 
 
+SUMO_ORACLE_TARGET = 1.3     # vehicle RMSE of rsu-bp at most 1.3 × oracle-kf on every sumo-* preset
+SUMO_SPEED_TARGET = 10.0     # steps per second on sumo-braunschweig-tlr at N_p = 600
+SCALING_TARGET = 0.1         # seconds per step with 200 vehicles
+
+
+def _rmse_all(rec, estimates) -> float:
+    table = evaluate(rec, estimates)
+    return float(np.sqrt(np.mean(table.err_pos[table.kind == VEHICLE] ** 2)))
+
+
+def sumo_preset(name: str, seed: int, oracle: bool, duration: float | None) -> dict:
+    """RMSE, ratios, steps/s and peak memory of rsu-bp beside gnss-kf (and oracle-kf) on one run."""
+    rec = recording(name, seed, {"duration": duration} if duration else None)
+    out: dict = {"steps": len(rec.frames),
+                 "vehicles_per_step": float(np.mean([len(f.vehicles) for f in rec.frames])),
+                 "v2f_rows_per_step": float(np.mean([len(f.batches["v2f"]) for f in rec.frames]))}
+    for est_name in ("gnss-kf", "rsu-bp", *(("oracle-kf",) if oracle else ())):
+        spent, estimates = run_steps(new_estimator(est_name, rec, None, seed), rec.frames)
+        out[est_name] = {"vehicle_rmse": _rmse_all(rec, estimates),
+                         "steps_per_second": len(rec.frames) / spent}
+        if est_name == "rsu-bp":
+            out[est_name]["discarded_share"] = float(
+                sum(e.info["v2f_discarded"] for e in estimates) / max(1, sum(len(e.info["v2f_track"])
+                                                                          for e in estimates)))
+    bp = out["rsu-bp"]
+    out["rsu_over_gnss"] = bp["vehicle_rmse"] / out["gnss-kf"]["vehicle_rmse"]
+    out["rsu_over_oracle"] = bp["vehicle_rmse"] / out["oracle-kf"]["vehicle_rmse"] if oracle else None
+    out["gnss_steps_per_rsu_step"] = out["gnss-kf"]["steps_per_second"] / bp["steps_per_second"]
+    out["peak_memory_bytes_20_steps"] = step_memory(new_estimator("rsu-bp", rec, None, seed), rec.frames[:20])
+    return out
+
+
+def scaling(vehicles: list[int], n_steps: int) -> dict:
+    """Seconds per step of rsu-bp and gnss-kf against vehicles, and rsu-bp's growth exponent."""
+    rows = []
+    for n in vehicles:
+        rec = recording("brambilla-crossroad", 0, {"n_vehicles": n, "n_steps": n_steps})
+        entry = {"vehicles": n}
+        for est_name in ("gnss-kf", "rsu-bp"):
+            spent, _ = run_steps(new_estimator(est_name, rec), rec.frames)
+            entry[f"{est_name}_seconds_per_step"] = spent / len(rec.frames)
+        rows.append(entry)
+    t = np.array([r["rsu-bp_seconds_per_step"] for r in rows])
+    exponent = float(np.polyfit(np.log(vehicles), np.log(t), 1)[0]) if len(vehicles) > 1 else None
+    at_200 = next((r["rsu-bp_seconds_per_step"] for r in rows if r["vehicles"] == 200), None)
+    return {"per_vehicles": rows, "rsu_bp_growth_exponent": exponent,
+            "rsu_bp_seconds_per_step_at_200": at_200,
+            "target_met_at_200": None if at_200 is None else bool(at_200 <= SCALING_TARGET)}
+
+
+def main_sumo(args: argparse.Namespace) -> int:
+    presets = (["sumo-grid-tlr"] if args.quick
+               else sorted(p for p in presets_by_name() if p.startswith("sumo-")))
+    duration = 15.0 if args.quick else None
+    vehicles = [20, 40] if args.quick else args.vehicles
+    result = {
+        **environment(),
+        "targets": {"rsu_over_oracle_at_most": SUMO_ORACLE_TARGET, "rsu_over_gnss_at_most": 1.0,
+                    "braunschweig_tlr_steps_per_second_at_least": SUMO_SPEED_TARGET,
+                    "seconds_per_step_at_200_vehicles_at_most": SCALING_TARGET},
+        "sumo": {name: sumo_preset(name, 1, args.oracle, duration) for name in presets},
+        "scaling": scaling(vehicles, 8 if args.quick else 32),
+    }
+    write_json(result, args.out)
+    print(json.dumps(result, indent=2))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="tiny sizes (checks the script)")
     parser.add_argument("--steps", type=int, default=None, help="steps per run (default 501)")
     parser.add_argument("--runs", type=int, default=None, help="runs at N_p = 600 (default 10)")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/rsu_bp.json"))
+    parser.add_argument("--out", type=Path, default=None,
+                        help="JSON file (default benchmarks/results/rsu_bp.json; "
+                             "rsu_bp_sumo.json with --sumo)")
+    parser.add_argument("--sumo", action="store_true", help="the sumo-* presets and the scaling curve")
+    parser.add_argument("--oracle", action="store_true", help="with --sumo: also oracle-kf (slow)")
+    parser.add_argument("--vehicles", type=int, nargs="+", default=[100, 200, 400],
+                        help="with --sumo: vehicle counts of the scaling curve")
     args = parser.parse_args(argv)
+    if args.out is None:
+        args.out = Path("benchmarks/results") / ("rsu_bp_sumo.json" if args.sumo else "rsu_bp.json")
+    if args.sumo:
+        return main_sumo(args)
     steps = args.steps or (6 if args.quick else 501)
     runs = args.runs or (1 if args.quick else 10)
     particles = (50, 100) if args.quick else (600, 2000)

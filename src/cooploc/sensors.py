@@ -141,11 +141,33 @@ class GnssPosition(_PerEntityCovariance):
         return gaussian_logpdf(batch.z - states @ H.T, batch.cov)
 
 
+def _check_range(model: Any) -> None:
+    """`max_range` of a sensor model: > 0 (``inf``: unlimited), stored as a float."""
+    if not model.max_range > 0:
+        raise InvalidInputError(f"{type(model).__name__}.max_range must be > 0, got {model.max_range!r}")
+    object.__setattr__(model, "max_range", float(model.max_range))
+
+
 @dataclass(frozen=True)
 class RelativePosition(_PerEntityCovariance):
-    """V2F relative position: z = H f − H x + w, covariance per sensing vehicle (Fröhle §V-A)."""
+    """V2F relative position: z = H f − H x + w, covariance per sensing vehicle (Fröhle §V-A).
+
+    `max_range` declares the sensing range R_s (m) the scenario applies through
+    `measure`'s ``visible`` mask (``inf``: every feature is in range); estimators read it
+    to tell a missed detection from a feature out of range.
+    """
 
     name: ClassVar[str] = "relative-position"
+    max_range: float = float("inf")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_range(self)
+
+    def to_dict(self) -> dict[str, Any]:
+        # an unlimited range is left out, so setups without one keep their setup.json
+        finite = {"max_range": self.max_range} if np.isfinite(self.max_range) else {}
+        return {**super().to_dict(), **finite}
 
     def measure(
         self,
@@ -317,9 +339,7 @@ class InfrastructureRadar(_PerEntityCovariance):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if not self.max_range > 0:
-            raise InvalidInputError(f"InfrastructureRadar.max_range must be > 0, got {self.max_range!r}")
-        object.__setattr__(self, "max_range", float(self.max_range))
+        _check_range(self)
 
     def measure(
         self,

@@ -211,7 +211,7 @@ def generate(params: BrambillaParams, rng: np.random.Generator) -> Recording:
     gnss_cov = np.diag([p.gnss_position_std**2] * 2 + [p.gnss_velocity_std**2] * 2)
     v2f_cov = np.diag([p.v2f_position_std**2] * 2 + [p.v2f_velocity_std**2] * 2)
     gnss = GnssPosition(default_cov=gnss_cov, state_indices=(0, 1, 2, 3))
-    v2f = RelativePosition(default_cov=v2f_cov, state_indices=(0, 1, 2, 3))
+    v2f = RelativePosition(default_cov=v2f_cov, state_indices=(0, 1, 2, 3), max_range=p.sensing_range)
     e = p.clutter_extent
     region = np.array([[-e, e], [-e, e], [-p.speed, p.speed], [-p.speed, p.speed]])
 

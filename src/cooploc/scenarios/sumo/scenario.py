@@ -93,8 +93,8 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
     zone_cov = _zone_covariances(params)
     zone_sensors = [GnssPosition(default_cov=c, state_indices=state) for c in zone_cov]
     v2f_cov = np.diag([params.v2f_position_std**2] * 2 + [params.v2f_velocity_std**2] * 2)
-    v2f = RelativePosition(default_cov=v2f_cov, state_indices=state)
     r = params.sensing_range
+    v2f = RelativePosition(default_cov=v2f_cov, state_indices=state, max_range=r)
     clutter_region = np.array([[-r, r], [-r, r], [-20.0, 20.0], [-20.0, 20.0]])
 
     frames, origins = [], []

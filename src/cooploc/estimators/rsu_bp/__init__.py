@@ -15,6 +15,15 @@ above the known-association bound.
 The messages written out, the complexity, and the choices the paper leaves open (vehicle
 births, feature initialisation, normalised messages, the shrinkage move after
 resampling, vanishing messages, ignored rows): docs/rsu_bp.md.
+
+Features not known in advance (`features`: "unknown", or "auto" on a setup without a
+feature prior, e.g. the sumo-* and brambilla-* scenarios): potential features with
+existence probabilities, births, survival, misses only within the sensing range,
+pruning (Meyer et al. 2018) in `rsu_bp.tracking` (existence weights in
+`rsu_bp.existence`). It is a second code path: with a feature prior (K known) the
+paper's algorithm above runs unchanged, bit for bit. In the unknown-feature path the
+vehicles' beliefs φχ are their own GNSS tracks and their particles are drawn from a
+proposal near the posterior (`rsu_bp.vehicles.posterior_samples`).
 """
 
 from __future__ import annotations
@@ -28,6 +37,9 @@ import numpy as np
 from cooploc.association import association_weights, bp_association, decide, padded_groups
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
+from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
+from cooploc.estimators.rsu_bp.tracking import FeatureTracker
+from cooploc.estimators.rsu_bp.vehicles import draw, moments, posterior_samples
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -51,8 +63,6 @@ __all__ = ["RsuBP", "RsuBPParams"]
 
 #: ESS below this share of N_p is reported as degenerate in `Estimate.info`.
 DEGENERACY_SHARE = 0.1
-
-
 @dataclass(frozen=True)
 class RsuBPParams(Params):
     """Parameters of `rsu-bp` (defaults: Fröhle 2018 §V-A).
@@ -71,6 +81,22 @@ class RsuBPParams(Params):
         else recompute it for each use.
     feature_init : "measurements" — draw the feature particles around the first V2F
         detections (the paper's footnote 1); "prior" — sample `Setup.feature_prior`.
+
+    The unknown-feature model (`rsu_bp.tracking`; Meyer et al. 2018 for existence,
+    births and pruning):
+
+    features : "known" — the paper's K features of `Setup.feature_prior`; "unknown" —
+        potential features born from the V2F rows; "auto" — "known" when the setup has
+        a feature prior, else "unknown".
+    survival_probability : p_s, a potential feature survives one step (Meyer: 0.999).
+    birth_density : μ_b f_b, expected new features per m² and step (uniform in position).
+    birth_velocity_std : σ_b of the birth intensity on the non-position components (m/s).
+    max_detection_probability : P_D is min(`Setup.detection_probability`, this): with
+        P_D = 1 one undetected step would delete a feature outright.
+    gate_probability : a feature–row pair enters the BP inside this χ² ellipsoid.
+    prune_threshold : potential features with existence below this are dropped (Meyer:
+        10⁻³); rows start a feature only with at least this existence.
+    existence_threshold : features with existence at least this are reported (0.5).
     """
 
     n_particles: int = param(600, ge=2)
@@ -81,6 +107,14 @@ class RsuBPParams(Params):
     shrinkage_move: bool = True
     kernel_memory_mb: float = 512.0
     feature_init: str = param("measurements", choices=("measurements", "prior"))
+    features: str = param("auto", choices=("auto", "known", "unknown"))
+    survival_probability: float = param(0.999, gt=0, le=1)
+    birth_density: float = param(1e-5, gt=0, finite=True)
+    birth_velocity_std: float = param(2.0, gt=0, finite=True)
+    max_detection_probability: float = param(0.99, gt=0, le=1)
+    gate_probability: float = param(0.9999, gt=0, lt=1)
+    prune_threshold: float = param(1e-3, gt=0, lt=1)
+    existence_threshold: float = param(0.5, gt=0, le=1)
 
     def validate(self) -> None:
         # no finiteness asked: inf means "always store the kernel"
@@ -126,6 +160,13 @@ class RsuBP:
             self.Ff = setup.feature_motion.transition_matrix(setup.dt)
         else:
             self.feature_ids = np.zeros(0, dtype=np.int64)
+        self.tracker: FeatureTracker | None = None     # the unknown-feature model, if used
+        if params.features == "known" or (params.features == "auto" and track):
+            pass
+        elif self.v2f is not None and setup.feature_layout is not None:
+            self.feature_ids = np.zeros(0, dtype=np.int64)
+            track = False
+            self.tracker = True  # built below, once the clutter intensity is known
         self.features: Particles | None = None        # None until initialised from V2F rows
         self.feature_gauss: Gaussians | None = None   # predicted prior until then
         self.vehicle_ids: IntArray = np.zeros(0, dtype=np.int64)
@@ -140,12 +181,17 @@ class RsuBP:
                                   "(the clutter density is uniform over it)")
             region = np.asarray(setup.clutter_region)
             self.clutter_intensity = setup.clutter_rate / float(np.prod(region[:, 1] - region[:, 0]))
+        if self.tracker is not None:
+            self.tracker = FeatureTracker(setup, params, self.clutter_intensity)
+            self.own = GnssKF(setup, GnssKFParams(), rng)
 
     # ------------------------------------------------------------------ step
 
     def step(self, frame: Frame) -> Estimate:
         steps = frame.k - self.last_k if self.last_k is not None else None
         self.last_k = frame.k
+        if self.tracker is not None:
+            return self._step_unknown(frame, steps)
         gnss_used = self._vehicles_sync_predict(frame, steps)
         self._features_predict(frame, steps)
         log_phi_chi = self.vehicles.log_weights + self._gnss_loglik(frame, gnss_used)  # φ χ
@@ -178,6 +224,47 @@ class RsuBP:
         estimate = self._estimate(info)
         self._resample()
         return estimate
+
+    def _step_unknown(self, frame: Frame, steps: int | None) -> Estimate:
+        """One step with potential features (`rsu_bp.tracking`) instead of the K known ones.
+
+        φ_s χ_s is each vehicle's own GNSS track (`gnss-kf`), sampled afresh every step;
+        the features' messages weight the samples and are not carried into the track.
+        """
+        own = self.own.step(frame).vehicles
+        self.tracker.predict(steps)
+        N = self.params.n_particles
+        v2f = frame.batches.get("v2f")
+        n_rows = len(v2f) if v2f is not None else 0
+        track = np.full(n_rows, -1, dtype=np.int64)
+        rows = np.zeros(0, dtype=np.int64)
+        if n_rows and len(own):
+            rows = np.flatnonzero(lookup_ids(own.ids, v2f.sensor)[1])
+        info: dict[str, Any] = {}
+        mean, cov = own.mean.copy(), own.cov.copy()
+        ess = np.full(len(own), float(N))
+        if rows.size:
+            # particles only for vehicles with rows: the others' belief is their own track
+            active = np.unique(lookup_ids(own.ids, v2f.sensor[rows])[0])
+            slot = np.full(len(own), -1, dtype=np.int64)
+            slot[active] = np.arange(active.size)
+            samples = draw(own.mean[active], own.cov[active], N, self.rng)          # φχ
+            messages, track[rows], found = self.tracker.update(
+                own.ids, own.mean, own.cov, samples, slot, v2f.select(rows), frame.batches.get("gnss"))
+            info.update(found)
+            messages = messages.on(slot, active.size)
+            samples, log_w = posterior_samples(
+                StateSet(own.ids[active], own.mean[active], own.cov[active]), messages, N, self.rng)
+            mean[active], cov[active] = moments(samples, log_w)
+            ess[active] = effective_sample_size(log_w)
+        info["v2f_association"] = track
+        info["v2f_track"] = track
+        info["v2f_discarded"] = int((track < 0).sum())
+        info["vehicle_ess"] = ess
+        info["degenerate"] = bool(len(own) and ess.min() < DEGENERACY_SHARE * N)
+        features, info["feature_existence"] = self.tracker.estimate()
+        vehicles = checked_states(self.name, "vehicle", own.ids, mean, cov)
+        return Estimate(vehicles, features, info)
 
     # ------------------------------------------------------------ vehicles
 
