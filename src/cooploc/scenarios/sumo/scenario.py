@@ -39,13 +39,14 @@ from typing import Any
 
 import numpy as np
 
+from cooploc.geometry import close_pairs, links_within
 from cooploc.motion import ConstantVelocity
 from cooploc.registry import Preset, register_scenario
 from cooploc.scenarios.sumo.cache import traffic
 from cooploc.scenarios.sumo.params import GRID, NETWORKS, STATIC_FEATURE_ID_OFFSET, SumoParams
 from cooploc.scenarios.sumo.roads import zone_of
 from cooploc.sensors import GnssPosition, RelativePosition
-from cooploc.types import Batch, FloatArray, Frame, IntArray, Recording, Setup, StateLayout, StateSet, Truth
+from cooploc.types import Batch, FloatArray, Frame, Recording, Setup, StateLayout, StateSet, Truth
 
 __all__ = ["PRESETS", "TINY_GRID", "generate", "traffic_seed"]
 
@@ -54,13 +55,6 @@ def _zone_covariances(params: SumoParams) -> FloatArray:
     """(3, 4, 4) GNSS covariance of zones A, B, C: diag(σ_p², σ_p², σ_v², σ_v²)."""
     p, v = np.asarray(params.gnss_position_std), np.asarray(params.gnss_velocity_std)
     return np.stack([np.diag([pi**2, pi**2, vi**2, vi**2]) for pi, vi in zip(p, v, strict=True)])
-
-
-def _links(ids: IntArray, positions: FloatArray, radius: float) -> IntArray:
-    """(E, 2) pairs i < j of vehicles within `radius` m."""
-    d = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
-    i, j = np.nonzero(np.triu(d <= radius, k=1))
-    return np.stack([ids[i], ids[j]], axis=1)
 
 
 def _draw_traffic_seed(params: SumoParams, rng_traffic: np.random.Generator) -> int:
@@ -111,12 +105,13 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
                      gnss_ids[order])
         f_on = feature_present[k]
         f_ids, f_states = feature_ids[f_on], feature_states[k, f_on]
-        distance = np.hypot(*(states[:, None, :2] - f_states[None, :, :2]).transpose(2, 0, 1))
+        visible = np.zeros((ids.size, f_ids.size), dtype=bool)
+        visible[close_pairs(states[:, :2], f_states[:, :2], r)] = True
         v2f_batch, v2f_origin = v2f.measure(
-            ids, states, f_ids, f_states, rng_v2f, visible=distance <= r,
+            ids, states, f_ids, f_states, rng_v2f, visible=visible,
             detection_probability=params.detection_probability, clutter_rate=params.clutter_rate,
             clutter_region=clutter_region)
-        links = _links(ids, states[:, :2], params.communication_range)
+        links = links_within(ids, states[:, :2], params.communication_range)
         frames.append(Frame(k, k * dt, ids, {"gnss": gnss, "v2f": v2f_batch}, links))
         origins.append({"gnss": gnss_ids[order], "v2f": v2f_origin})
 
@@ -126,7 +121,7 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
     prior_mean = start_states + rng_prior.multivariate_normal(np.zeros(4), prior_cov,
                                                               size=at_start.size)
     birth_cov = np.diag([params.birth_position_std**2] * 2 + [params.birth_velocity_std**2] * 2)
-    net = params.network if params.network == GRID else NETWORKS[params.network][2]
+    net = params.network if params.network == GRID else params.network_label
     setup = Setup(
         dt=dt,
         n_steps=T,
