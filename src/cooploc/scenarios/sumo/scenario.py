@@ -48,7 +48,7 @@ from cooploc.scenarios.sumo.roads import zone_of
 from cooploc.sensors import GnssPosition, RelativePosition
 from cooploc.types import Batch, FloatArray, Frame, Recording, Setup, StateLayout, StateSet, Truth
 
-__all__ = ["PRESETS", "TINY_GRID", "generate", "traffic_seed"]
+__all__ = ["CITY", "PRESETS", "TINY_GRID", "generate", "traffic_seed"]
 
 
 def _zone_covariances(params: SumoParams) -> FloatArray:
@@ -159,18 +159,24 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
 # ----------------------------------------------------------------------------
 
 
-def _preset(network: str, regulation: str, **overrides: Any) -> Preset:
+def _preset(network: str, regulation: str, *, size: str = "", **overrides: Any) -> Preset:
     label = "generated grid" if network == GRID else NETWORKS[network][2]
     lights = ("traffic-light regulated (TLR)" if regulation == "tlr"
               else "vehicle self-regulated (VSR, unsignalised priority junctions)")
     return Preset(
-        name=f"sumo-{network}-{regulation}",
+        name=f"sumo-{network}{size and '-' + size}-{regulation}",
         params=SumoParams(network=network, regulation=regulation, **overrides),
-        summary=f"SUMO urban traffic, {label}, {lights}; GNSS zones A/B/C, V2F R_s = 50 m",
+        summary=(f"SUMO urban traffic, {label}{size and ' (' + size + '-size cut)'}, {lights}; "
+                 "GNSS zones A/B/C, V2F R_s = 50 m"),
         doc=("Analogue of Brambilla et al. 2020 §VI (Figs. 16–17) on a SUMO network; see "
              "cooploc.scenarios.sumo for what differs from the paper's Turin arterial."),
         bound="oracle-kf",
     )
+
+
+#: the city-size cut: Berlin-Adlershof in a 4 km square, a vehicle trip every 0.2 s and a
+#: pedestrian every 2 s — over a thousand vehicles in the network at once
+CITY: dict[str, Any] = {"area_half_width": 2000.0, "vehicle_period": 0.2, "pedestrian_period": 2.0}
 
 
 #: a network and run small enough for the test suite: 2 × 2 grid of 80 m blocks, 20 s
@@ -184,6 +190,7 @@ PRESETS = register_scenario("sumo", generate, [
     _preset("braunschweig", "vsr"),
     _preset("berlin", "tlr"),
     _preset("berlin", "vsr"),
+    _preset("berlin", "tlr", size="city", **CITY),
     # tests and quick checks: a 3 × 3 grid of 100 m blocks, 60 s
     _preset(GRID, "tlr", duration=60.0, warmup=60.0, zone_radii=(40.0, 90.0)),
     _preset(GRID, "vsr", duration=60.0, warmup=60.0, zone_radii=(40.0, 90.0)),
