@@ -56,6 +56,8 @@ Choices the paper leaves open (parameters here)
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,6 +69,7 @@ from cooploc.params import Params, param
 from cooploc.registry import Preset, register_scenario
 from cooploc.scenarios import limits
 from cooploc.sensors import GnssPosition, RelativePosition
+from cooploc.streams import Step, is_long, streamed
 from cooploc.types import Frame, Recording, Setup, StateLayout, StateSet, Truth
 
 __all__ = ["FEATURE_ID_OFFSET", "PRESETS", "BrambillaParams", "generate"]
@@ -209,20 +212,24 @@ def generate(params: BrambillaParams, rng: np.random.Generator) -> Recording:
     e = p.clutter_extent
     region = np.array([[-e, e], [-e, e], [-p.speed, p.speed], [-p.speed, p.speed]])
 
-    frames, origins = [], []
-    for k in range(T):
-        pos_v, pos_f = vehicles[k, :, :2], features[k, :, :2]
-        visible = np.zeros((N, K), dtype=bool)
-        visible[close_pairs(pos_v, pos_f, p.sensing_range)] = True
-        gnss_batch = gnss.measure(vehicle_ids, vehicles[k], rng_gnss)
-        v2f_batch, v2f_origin = v2f.measure(
-            vehicle_ids, vehicles[k], feature_ids, features[k], rng_v2f, visible=visible,
-            detection_probability=p.detection_probability, clutter_rate=p.clutter_rate,
-            clutter_region=region,
-        )
-        links = links_within(vehicle_ids, pos_v, p.communication_range)
-        frames.append(Frame(k, k * dt, vehicle_ids, {"gnss": gnss_batch, "v2f": v2f_batch}, links))
-        origins.append({"gnss": vehicle_ids, "v2f": v2f_origin})
+    def steps() -> Iterator[Step]:
+        # from the generators' states now, so that every pass draws the same numbers
+        rng_g, rng_f = copy.deepcopy(rng_gnss), copy.deepcopy(rng_v2f)
+        for k in range(T):
+            pos_v, pos_f = vehicles[k, :, :2], features[k, :, :2]
+            visible = np.zeros((N, K), dtype=bool)
+            visible[close_pairs(pos_v, pos_f, p.sensing_range)] = True
+            gnss_batch = gnss.measure(vehicle_ids, vehicles[k], rng_g)
+            v2f_batch, v2f_origin = v2f.measure(
+                vehicle_ids, vehicles[k], feature_ids, features[k], rng_f, visible=visible,
+                detection_probability=p.detection_probability, clutter_rate=p.clutter_rate,
+                clutter_region=region,
+            )
+            links = links_within(vehicle_ids, pos_v, p.communication_range)
+            yield (Frame(k, k * dt, vehicle_ids, {"gnss": gnss_batch, "v2f": v2f_batch}, links),
+                   {"gnss": vehicle_ids, "v2f": v2f_origin})
+
+    frames, origins = streamed(T, steps, lazy=is_long(T))
 
     setup = Setup(
         dt=dt,

@@ -35,6 +35,8 @@ cost of a build is measured by ``benchmarks/sumo_traffic.py``.
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -46,6 +48,7 @@ from cooploc.scenarios.sumo.cache import traffic
 from cooploc.scenarios.sumo.params import GRID, NETWORKS, STATIC_FEATURE_ID_OFFSET, SumoParams
 from cooploc.scenarios.sumo.roads import zone_of
 from cooploc.sensors import GnssPosition, RelativePosition
+from cooploc.streams import Step, is_long, streamed
 from cooploc.types import Batch, FloatArray, Frame, Recording, Setup, StateLayout, StateSet, Truth
 
 __all__ = ["CITY", "PRESETS", "TINY_GRID", "generate", "traffic_seed"]
@@ -91,29 +94,33 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
     r = params.sensing_range
     clutter_region = np.array([[-r, r], [-r, r], [-20.0, 20.0], [-20.0, 20.0]])
 
-    frames, origins = [], []
-    for k in range(T):
-        present = run.vehicle_present[k]
-        ids, states = run.vehicle_ids[present], run.vehicle_states[k, present]
-        zone = zone_of(states, run.centre, params.zone_radii)
-        parts = [zone_sensors[z].measure(ids[zone == z], states[zone == z], rng_gnss) for z in range(3)]
-        gnss_z = np.concatenate([b.z for b in parts])
-        gnss_cov = np.concatenate([b.cov for b in parts])
-        gnss_ids = np.concatenate([b.subject for b in parts])
-        order = np.argsort(gnss_ids, kind="stable")
-        gnss = Batch(gnss_z[order].reshape(-1, 4), gnss_cov[order].reshape(-1, 4, 4), gnss_ids[order],
-                     gnss_ids[order])
-        f_on = feature_present[k]
-        f_ids, f_states = feature_ids[f_on], feature_states[k, f_on]
-        visible = np.zeros((ids.size, f_ids.size), dtype=bool)
-        visible[close_pairs(states[:, :2], f_states[:, :2], r)] = True
-        v2f_batch, v2f_origin = v2f.measure(
-            ids, states, f_ids, f_states, rng_v2f, visible=visible,
-            detection_probability=params.detection_probability, clutter_rate=params.clutter_rate,
-            clutter_region=clutter_region)
-        links = links_within(ids, states[:, :2], params.communication_range)
-        frames.append(Frame(k, k * dt, ids, {"gnss": gnss, "v2f": v2f_batch}, links))
-        origins.append({"gnss": gnss_ids[order], "v2f": v2f_origin})
+    def steps() -> Iterator[Step]:
+        # from the generators' states now, so that every pass draws the same numbers
+        rng_g, rng_f = copy.deepcopy(rng_gnss), copy.deepcopy(rng_v2f)
+        for k in range(T):
+            present = run.vehicle_present[k]
+            ids, states = run.vehicle_ids[present], run.vehicle_states[k, present]
+            zone = zone_of(states, run.centre, params.zone_radii)
+            parts = [zone_sensors[z].measure(ids[zone == z], states[zone == z], rng_g) for z in range(3)]
+            gnss_z = np.concatenate([b.z for b in parts])
+            gnss_cov = np.concatenate([b.cov for b in parts])
+            gnss_ids = np.concatenate([b.subject for b in parts])
+            order = np.argsort(gnss_ids, kind="stable")
+            gnss = Batch(gnss_z[order].reshape(-1, 4), gnss_cov[order].reshape(-1, 4, 4), gnss_ids[order],
+                         gnss_ids[order])
+            f_on = feature_present[k]
+            f_ids, f_states = feature_ids[f_on], feature_states[k, f_on]
+            visible = np.zeros((ids.size, f_ids.size), dtype=bool)
+            visible[close_pairs(states[:, :2], f_states[:, :2], r)] = True
+            v2f_batch, v2f_origin = v2f.measure(
+                ids, states, f_ids, f_states, rng_f, visible=visible,
+                detection_probability=params.detection_probability, clutter_rate=params.clutter_rate,
+                clutter_region=clutter_region)
+            links = links_within(ids, states[:, :2], params.communication_range)
+            yield (Frame(k, k * dt, ids, {"gnss": gnss, "v2f": v2f_batch}, links),
+                   {"gnss": gnss_ids[order], "v2f": v2f_origin})
+
+    frames, origins = streamed(T, steps, lazy=is_long(T))
 
     at_start = run.vehicle_ids[run.vehicle_present[0]]
     prior_cov = np.diag([params.prior_position_std**2] * 2 + [params.prior_velocity_std**2] * 2)
