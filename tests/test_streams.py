@@ -11,6 +11,7 @@ import pytest
 
 import cooploc.streams as streams
 from cooploc.errors import InvalidInputError
+from cooploc.metrics import evaluate, score_association
 from cooploc.scenarios import get_preset
 from cooploc.types import Batch, Frame, Recording
 from helpers import run_estimator
@@ -68,8 +69,13 @@ def test_origins_are_kept_and_going_back_starts_again(monkeypatch: pytest.Monkey
     for k in range(len(lazy.frames)):   # the origins of a finished pass make no frame again
         lazy.truth.origin[k]
     assert stream.passes == 1
+    # the runner's scoring after an estimator's pass makes no frame again either
+    estimates = run_estimator("gnss-kf", lazy)   # a pass of its own (from step 0)
+    errors = evaluate(lazy, estimates)
+    score_association(lazy, estimates)
+    assert stream.passes == 2 and len(errors)
     lazy.frames[3]                      # going back does
-    assert stream.passes == 2
+    assert stream.passes == 3
     with pytest.raises(IndexError):
         lazy.frames[len(lazy.frames)]
 

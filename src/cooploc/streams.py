@@ -10,9 +10,9 @@ recording's `frames` and its truth's `origin` are then views of the stream
   and a known-association reference reading `truth.origin[k]` meet the same one); going
   back to an earlier step starts the producer again from its saved generator states,
   so every pass sees the same numbers, bit for bit;
-- what is compact is kept once made: the time of each step, and the origin of every
-  row (the truth metrics need, a few bytes per measurement), so that scoring a run
-  after stepping through it makes no frame again;
+- what is compact is kept once made: the time of each step (`Recording.time_of`) and
+  the origin of every row (the truth metrics need, a few bytes per measurement), so
+  that scoring a run after stepping through it makes no frame again;
 - the checks `Recording` makes of a list of frames (step index, origins aligned with
   the rows) are made on each step as it is produced.
 
@@ -81,6 +81,12 @@ class FrameStream:
         assert self._current is not None
         return self._current
 
+    def time(self, k: int) -> float:
+        """The time (s) of step k (made once, then kept)."""
+        if k >= len(self._times):
+            self.step(k)
+        return self._times[k]
+
     def origin(self, k: int) -> Mapping[str, IntArray]:
         """The origins of step k's rows (made once, then kept)."""
         if k >= len(self._origins):
@@ -135,6 +141,10 @@ class LazyFrames(_View):
 
     def _item(self, k: int) -> Frame:
         return self.stream.step(k)[0]
+
+    def time(self, k: int) -> float:
+        """The time (s) of frame k, without making it again once it was made."""
+        return self.stream.time(k)
 
 
 class LazyOrigins(_View):

@@ -671,6 +671,11 @@ class Recording:
                     )
         object.__setattr__(self, "frames", frames)
 
+    def time_of(self, k: int) -> float:
+        """The time (s) of step k; frames made on demand are not made again for it."""
+        time = getattr(self.frames, "time", None)
+        return float(time(k)) if callable(time) else self.frames[k].t
+
 
 @dataclass(frozen=True, slots=True)
 class Estimate:
