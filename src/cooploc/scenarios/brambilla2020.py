@@ -52,6 +52,10 @@ Choices the paper leaves open (parameters here)
 - Features are not known in advance (`Setup.feature_prior` is empty): as in the
   paper, a feature no vehicle senses has a uniform belief.
 - Ids: vehicles 0..N_v−1 (cluster c holds 3c..3c+2); features 1000 + k.
+
+Links and V2F visibility come from k-d trees (`geometry.links_within`, `close_pairs`),
+so a frame costs what its links and rows cost; a run longer than
+`streams.STREAM_FROM_STEPS` steps makes its frames on demand (`cooploc.streams`).
 """
 
 from __future__ import annotations

@@ -29,8 +29,12 @@ and differ only in sensor noise.
 Randomness: `rng` is split into four children (traffic seed, prior, GNSS, V2F), in
 that order; `traffic_seed` reproduces the first.
 
-Complexity: a frame costs O(n K + n²) for n vehicles present and K features; the
-cost of a build is measured by ``benchmarks/sumo_traffic.py``.
+Complexity: a frame costs O((n + K) log(n + K) + E + M) for n vehicles present, K
+features, E links and M V2F rows (k-d trees, `geometry.links_within` and
+`close_pairs`; an n × K boolean mask is the only dense array); the cost of a build is
+measured by ``benchmarks/sumo_traffic.py``. A run longer than
+`streams.STREAM_FROM_STEPS` steps makes its frames on demand (`cooploc.streams`), so
+its memory does not grow with the horizon beyond the truth.
 """
 
 from __future__ import annotations
