@@ -118,6 +118,14 @@ def test_a_network_that_is_neither_a_name_nor_a_network_file_is_refused() -> Non
         sumo.SumoParams(network="atlantis")
 
 
+def test_the_city_preset_is_berlin_with_the_paper_sensors_and_dense_traffic() -> None:
+    city, berlin = get_preset("sumo-berlin-city-tlr").params, get_preset("sumo-berlin-tlr").params
+    assert (city.network, city.regulation, city.area_half_width) == ("berlin", "tlr", 2000.0)
+    assert city.vehicle_period == 0.2 and city.pedestrian_period == 2.0
+    # everything else, the sensors of §VI-A included, is sumo-berlin-tlr's
+    assert city.with_overrides({k: getattr(berlin, k) for k in sumo.scenario.CITY}) == berlin
+
+
 # ----------------------------------------------------------------------------
 # the bounded cache
 # ----------------------------------------------------------------------------
