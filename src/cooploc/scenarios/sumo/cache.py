@@ -113,6 +113,7 @@ def cache_path(params: SumoParams, seed: int) -> Path:
 def traffic(params: SumoParams, seed: int, *, use_cache: bool = True) -> Traffic:
     """The traffic of `params` and `seed`: from the cache, or simulated and cached."""
     path = cache_path(params, seed)
+    limit = cache_limit() if use_cache else 0  # a bad limit is refused before SUMO runs
     if use_cache and path.is_file():
         try:
             result = Traffic.load(path)
@@ -124,7 +125,6 @@ def traffic(params: SumoParams, seed: int, *, use_cache: bool = True) -> Traffic
             return result
     result = simulate_traffic(params, seed)
     if use_cache:
-        limit = cache_limit()  # a bad limit is refused before anything is written
         result.save(path)
         evict(path.parent, limit, keep=path)
     return result

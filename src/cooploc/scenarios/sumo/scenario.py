@@ -98,13 +98,19 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
     r = params.sensing_range
     clutter_region = np.array([[-r, r], [-r, r], [-20.0, 20.0], [-20.0, 20.0]])
 
+    # what the steps read, and nothing else of `run`: a streamed recording keeps these
+    # (the states are swapped for the truth's copies below, so that one copy is kept)
+    vehicle_ids, vehicle_present, centre = run.vehicle_ids, run.vehicle_present, run.centre
+    states_of = {"vehicles": run.vehicle_states, "features": feature_states}
+
     def steps() -> Iterator[Step]:
         # from the generators' states now, so that every pass draws the same numbers
         rng_g, rng_f = copy.deepcopy(rng_gnss), copy.deepcopy(rng_v2f)
+        vehicle_states, feature_states = states_of["vehicles"], states_of["features"]
         for k in range(T):
-            present = run.vehicle_present[k]
-            ids, states = run.vehicle_ids[present], run.vehicle_states[k, present]
-            zone = zone_of(states, run.centre, params.zone_radii)
+            present = vehicle_present[k]
+            ids, states = vehicle_ids[present], vehicle_states[k, present]
+            zone = zone_of(states, centre, params.zone_radii)
             parts = [zone_sensors[z].measure(ids[zone == z], states[zone == z], rng_g) for z in range(3)]
             gnss_z = np.concatenate([b.z for b in parts])
             gnss_cov = np.concatenate([b.cov for b in parts])
@@ -162,6 +168,7 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
         feature_present=feature_present,
         origin=origins,
     )
+    states_of.update(vehicles=truth.vehicle_states, features=truth.feature_states)  # equal values
     return Recording(setup, frames, truth)
 
 
