@@ -10,9 +10,9 @@ survives a loaded machine — the seconds of the dense n × n distance matrix th
 the links before `cooploc.geometry.links_within` (one frame, times the steps). The
 fitted exponent b of time ∝ n^b over the sizes (CPU time; a first small run warms up
 the imports) says how generation grows (1: linear).
-The links themselves grow with the vehicles that share a communication range, so a
-scenario whose density grows with n (the crossroad's clusters queue on four roads) has
-links, and a generation cost, that grow faster than n.
+The links grow with the vehicles that share a communication range: linearly here (more
+clusters queue behind the first ones at a fixed spacing), faster than n where the
+density grows with n (more traffic in the same streets), and generation with them.
 
 Numbers depend on the machine and its load; the JSON records `common.environment()`.
 """
