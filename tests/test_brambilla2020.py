@@ -9,7 +9,7 @@ import pytest
 from cooploc.errors import ConfigError
 from cooploc.motion import CVVelocityNoise
 from cooploc.scenarios import get_preset
-from cooploc.scenarios.brambilla2020 import KMH, v2v_links
+from cooploc.scenarios.brambilla2020 import KMH
 from helpers import preset_recording
 
 N_SIGMA = 6.0
@@ -40,7 +40,9 @@ def test_ranges_are_respected() -> None:
         dist = np.linalg.norm(gap, axis=1)
         assert (dist <= 75.0).all()
         pos = truth.vehicle_states[frame.k, :, :2]
-        expected = v2v_links(truth.vehicle_ids, pos, 250.0)
+        # every pair within R_c, in the order of the upper triangle of the distance matrix
+        i, j = np.nonzero(np.triu(np.linalg.norm(pos[:, None] - pos[None], axis=2) <= 250.0, k=1))
+        expected = np.stack([truth.vehicle_ids[i], truth.vehicle_ids[j]], axis=1)
         np.testing.assert_array_equal(frame.links, expected)
         # every pair within R_s is sensed (P_D = 1)
         d_all = np.linalg.norm(pos[:, None] - truth.feature_states[frame.k][None, :, :2], axis=2)

@@ -329,7 +329,7 @@ def evaluate(recording: Recording, estimates: Sequence[Estimate]) -> ErrorTable:
                                 f"{len(recording.frames)} frames")
     columns: list[tuple] = []
     for k, estimate in enumerate(estimates):
-        t = recording.frames[k].t
+        t = recording.time_of(k)
         parts = [(VEHICLE, estimate.vehicles, truth.vehicle_ids, truth.vehicle_states[k],
                   truth.vehicle_present[k], setup.vehicle_layout)]
         if estimate.features is not None and setup.feature_layout is not None:

@@ -99,6 +99,8 @@ class _PerEntityCovariance:
     def covariance_of(self, ids: npt.ArrayLike) -> FloatArray:
         """(n, dz, dz) noise covariance of each entity id."""
         ids = np.asarray(ids, dtype=np.int64)
+        if not self.covariances and self.default_cov is not None:  # one for all: no loop over ids
+            return np.broadcast_to(self.default_cov, (ids.size, self.dim, self.dim)).copy()
         out = np.empty((ids.size, self.dim, self.dim))
         for i, entity in enumerate(ids.tolist()):
             cov = self.covariances.get(entity, self.default_cov)

@@ -562,7 +562,8 @@ class Truth:
             )
         if len(self.origin) != n_steps:
             raise InvalidInputError(f"Truth.origin must have {n_steps} steps, got {len(self.origin)}")
-        origin = tuple(
+        # origins made with their frames on demand (`cooploc.streams`) stay so
+        origin = self.origin if getattr(self.origin, "is_stream", False) else tuple(
             MappingProxyType({kind: int_array(f"Truth.origin[{k}][{kind!r}]", rows, (None,))
                               for kind, rows in step.items()})
             for k, step in enumerate(self.origin)
@@ -630,13 +631,23 @@ class AssociationTruth:
 
 @dataclass(frozen=True)
 class Recording:
-    """A whole run: static setup, one frame per step, and the truth behind them."""
+    """A whole run: static setup, one frame per step, and the truth behind them.
+
+    `frames` is a tuple, or a view of frames made on demand (`cooploc.streams`), which
+    a long run uses so that its memory does not grow with the horizon.
+    """
 
     setup: Setup
     frames: Sequence[Frame]
     truth: Truth
 
     def __post_init__(self) -> None:
+        if getattr(self.frames, "is_stream", False):
+            # frames made on demand (`cooploc.streams`): each step is checked as it is made
+            if len(self.frames) != self.truth.n_steps:
+                raise InvalidInputError(f"Recording.frames has {len(self.frames)} frames, "
+                                        f"truth has {self.truth.n_steps} steps")
+            return
         frames = tuple(self.frames)
         if len(frames) != self.truth.n_steps:
             raise InvalidInputError(
@@ -659,6 +670,11 @@ class Recording:
                         f"got {None if rows is None else rows.size}"
                     )
         object.__setattr__(self, "frames", frames)
+
+    def time_of(self, k: int) -> float:
+        """The time (s) of step k; frames made on demand are not made again for it."""
+        time = getattr(self.frames, "time", None)
+        return float(time(k)) if callable(time) else self.frames[k].t
 
 
 @dataclass(frozen=True, slots=True)

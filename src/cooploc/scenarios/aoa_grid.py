@@ -68,6 +68,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cooploc.budget import Sizes
+from cooploc.geometry import links_within
 from cooploc.motion import RandomWalk
 from cooploc.params import Params, param
 from cooploc.registry import Preset, register_scenario
@@ -164,14 +165,6 @@ def place_vehicles(params: AoaGridParams, rng: np.random.Generator) -> np.ndarra
     return np.stack([x, y, heading], axis=1)
 
 
-def _links(positions: np.ndarray, ids: np.ndarray, radius: float) -> np.ndarray:
-    """(E, 2) id pairs within `radius` (k-d tree, O(n log n))."""
-    from scipy.spatial import cKDTree
-
-    pairs = cKDTree(positions).query_pairs(radius, output_type="ndarray")
-    return ids[pairs.reshape(-1, 2)]
-
-
 def generate(params: AoaGridParams, rng: np.random.Generator) -> Recording:
     """Simulate one run: a snapshot (n_steps = 1) or a tracking run."""
     n, T, dt = params.n_vehicles, params.n_steps, params.dt
@@ -197,7 +190,8 @@ def generate(params: AoaGridParams, rng: np.random.Generator) -> Recording:
                        if (~anchors).any() else cov[0], state_indices=(0, 1, 2))
     frames, origins = [], []
     for k in range(T):
-        links = _links(states[k, :, :2], ids, params.communication_radius)
+        # the k-d tree's order: the AoA noise is drawn link by link in this order
+        links = links_within(ids, states[k, :, :2], params.communication_radius, tree_order=True)
         aoa_batch = aoa.measure(ids, states[k], links, rng_aoa)
         batches = {"aoa": aoa_batch}
         origin = {"aoa": aoa_batch.subject.copy()}

@@ -52,23 +52,31 @@ Choices the paper leaves open (parameters here)
 - Features are not known in advance (`Setup.feature_prior` is empty): as in the
   paper, a feature no vehicle senses has a uniform belief.
 - Ids: vehicles 0..N_v−1 (cluster c holds 3c..3c+2); features 1000 + k.
+
+Links and V2F visibility come from k-d trees (`geometry.links_within`, `close_pairs`),
+so a frame costs what its links and rows cost; a run longer than
+`streams.STREAM_FROM_STEPS` steps makes its frames on demand (`cooploc.streams`).
 """
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from cooploc.budget import Sizes
+from cooploc.geometry import close_pairs, links_within
 from cooploc.motion import CVAccelerationInput, CVVelocityNoise, simulate
 from cooploc.params import Params, param
 from cooploc.registry import Preset, register_scenario
 from cooploc.scenarios import limits
 from cooploc.sensors import GnssPosition, RelativePosition
+from cooploc.streams import Step, is_long, streamed
 from cooploc.types import Frame, Recording, Setup, StateLayout, StateSet, Truth
 
-__all__ = ["FEATURE_ID_OFFSET", "PRESETS", "BrambillaParams", "generate", "v2v_links"]
+__all__ = ["FEATURE_ID_OFFSET", "PRESETS", "BrambillaParams", "generate"]
 
 FEATURE_ID_OFFSET = 1000
 KMH = 1.0 / 3.6
@@ -142,13 +150,6 @@ class BrambillaParams(Params):
         return Sizes(self.n_steps, self.n_vehicles, self.n_features)
 
 
-def v2v_links(ids: np.ndarray, positions: np.ndarray, communication_range: float) -> np.ndarray:
-    """(E, 2) pairs of ids (i < j) within the communication range of each other."""
-    i, j = np.triu_indices(ids.size, k=1)
-    close = np.hypot(*(positions[i] - positions[j]).T) <= communication_range
-    return np.stack([ids[i[close]], ids[j[close]]], axis=1)
-
-
 def _road_starts(p: BrambillaParams) -> tuple[np.ndarray, np.ndarray]:
     """Nominal start positions (n, 2) and driving directions (n,) on the single road."""
     x = -p.road_start - p.headway * np.arange(p.n_vehicles)
@@ -215,19 +216,24 @@ def generate(params: BrambillaParams, rng: np.random.Generator) -> Recording:
     e = p.clutter_extent
     region = np.array([[-e, e], [-e, e], [-p.speed, p.speed], [-p.speed, p.speed]])
 
-    frames, origins = [], []
-    for k in range(T):
-        pos_v, pos_f = vehicles[k, :, :2], features[k, :, :2]
-        visible = np.hypot(*(pos_f[None] - pos_v[:, None]).transpose(2, 0, 1)) <= p.sensing_range
-        gnss_batch = gnss.measure(vehicle_ids, vehicles[k], rng_gnss)
-        v2f_batch, v2f_origin = v2f.measure(
-            vehicle_ids, vehicles[k], feature_ids, features[k], rng_v2f, visible=visible,
-            detection_probability=p.detection_probability, clutter_rate=p.clutter_rate,
-            clutter_region=region,
-        )
-        links = v2v_links(vehicle_ids, pos_v, p.communication_range)
-        frames.append(Frame(k, k * dt, vehicle_ids, {"gnss": gnss_batch, "v2f": v2f_batch}, links))
-        origins.append({"gnss": vehicle_ids, "v2f": v2f_origin})
+    def steps() -> Iterator[Step]:
+        # from the generators' states now, so that every pass draws the same numbers
+        rng_g, rng_f = copy.deepcopy(rng_gnss), copy.deepcopy(rng_v2f)
+        for k in range(T):
+            pos_v, pos_f = vehicles[k, :, :2], features[k, :, :2]
+            visible = np.zeros((N, K), dtype=bool)
+            visible[close_pairs(pos_v, pos_f, p.sensing_range)] = True
+            gnss_batch = gnss.measure(vehicle_ids, vehicles[k], rng_g)
+            v2f_batch, v2f_origin = v2f.measure(
+                vehicle_ids, vehicles[k], feature_ids, features[k], rng_f, visible=visible,
+                detection_probability=p.detection_probability, clutter_rate=p.clutter_rate,
+                clutter_region=region,
+            )
+            links = links_within(vehicle_ids, pos_v, p.communication_range)
+            yield (Frame(k, k * dt, vehicle_ids, {"gnss": gnss_batch, "v2f": v2f_batch}, links),
+                   {"gnss": vehicle_ids, "v2f": v2f_origin})
+
+    frames, origins = streamed(T, steps, lazy=is_long(T))
 
     setup = Setup(
         dt=dt,

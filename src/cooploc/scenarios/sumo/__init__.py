@@ -6,7 +6,9 @@ T_s = 0.75 s, comparing traffic-light-regulated (TLR) and vehicle-self-regulated
 junctions, with GNSS accuracy varying over three map zones and 64 static features
 along the roads (§VI-A). This family builds the same kind of run with Eclipse SUMO,
 headless and in-process, on road networks of real cities that the ``eclipse-sumo``
-package ships (Braunschweig, Berlin-Adlershof), or on a generated grid (tests).
+package ships (Braunschweig, Berlin-Adlershof), on the user's own network (``network``
+= the path of a SUMO ``.net.xml`` or an OpenStreetMap ``.osm`` extract), or on a
+generated grid (tests).
 
 What differs from the paper, in short (each module says it in full):
 
@@ -26,7 +28,8 @@ The package, one job per module:
 - `params` — `SumoParams` (defaults from §VI-A), the networks, id ranges;
 - `simulation` — networks (netconvert/netgenerate), demand (randomTrips) and the
   libsumo/TraCI loop that yields `Traffic` (`simulate_traffic`);
-- `cache` — `Traffic` on disk, keyed by everything that changes it (`traffic`);
+- `cache` — `Traffic` on disk, keyed by everything that changes it (`traffic`),
+  bounded in size with least-recently-used eviction (`cache_limit`, `evict`);
 - `roads` — static features from the road geometry, GNSS zones (`zone_of`);
 - `scenario` — `generate`: GNSS by zone, V2F, V2V links, priors; the presets.
 
@@ -37,9 +40,20 @@ needs it. Timings and sizes: ``benchmarks/sumo_traffic.py``.
 
 from __future__ import annotations
 
-from cooploc.scenarios.sumo.cache import CACHE_FORMAT, cache_dir, cache_key, cache_path, traffic
+from cooploc.scenarios.sumo.cache import (
+    CACHE_FORMAT,
+    CACHE_LIMIT_VARIABLE,
+    DEFAULT_CACHE_LIMIT,
+    cache_dir,
+    cache_key,
+    cache_limit,
+    cache_path,
+    evict,
+    traffic,
+)
 from cooploc.scenarios.sumo.params import (
     GRID,
+    NETWORK_SUFFIXES,
     NETWORKS,
     PEDESTRIAN_ID_OFFSET,
     REGULATIONS,
@@ -49,12 +63,21 @@ from cooploc.scenarios.sumo.params import (
 )
 from cooploc.scenarios.sumo.roads import ZONES, static_features, zone_of
 from cooploc.scenarios.sumo.scenario import PRESETS, TINY_GRID, generate, traffic_seed
-from cooploc.scenarios.sumo.simulation import SumoNotInstalledError, Traffic, network_path, simulate_traffic
+from cooploc.scenarios.sumo.simulation import (
+    SumoNotInstalledError,
+    Traffic,
+    network_file,
+    network_path,
+    simulate_traffic,
+)
 
 __all__ = [
     "CACHE_FORMAT",
+    "CACHE_LIMIT_VARIABLE",
+    "DEFAULT_CACHE_LIMIT",
     "GRID",
     "NETWORKS",
+    "NETWORK_SUFFIXES",
     "PEDESTRIAN_ID_OFFSET",
     "PRESETS",
     "REGULATIONS",
@@ -67,8 +90,11 @@ __all__ = [
     "Traffic",
     "cache_dir",
     "cache_key",
+    "cache_limit",
     "cache_path",
+    "evict",
     "generate",
+    "network_file",
     "network_path",
     "simulate_traffic",
     "static_features",

@@ -25,6 +25,8 @@ from cooploc.scenarios import limits
 __all__ = [
     "GRID",
     "NETWORKS",
+    "NETWORK_SUFFIXES",
+    "OSM_SUFFIXES",
     "PEDESTRIAN_ID_OFFSET",
     "REGULATIONS",
     "STATIC_FEATURE_ID_OFFSET",
@@ -38,6 +40,10 @@ NETWORKS: dict[str, tuple[str, str, str]] = {
     "berlin": ("DRT", "osm.net.xml", "Berlin-Adlershof (Germany)"),
 }
 GRID = "grid"
+#: a `network` that is none of the names above is the path of the user's own network:
+#: a SUMO network, or an OpenStreetMap extract that netconvert converts
+OSM_SUFFIXES = (".osm", ".osm.xml", ".osm.gz", ".osm.xml.gz")
+NETWORK_SUFFIXES = (".net.xml", ".net.xml.gz", *OSM_SUFFIXES)
 REGULATIONS = ("tlr", "vsr")
 STATIC_FEATURE_ID_OFFSET = 1_000_000
 PEDESTRIAN_ID_OFFSET = 2_000_000
@@ -47,7 +53,9 @@ class SumoParams(Params):
 
     Attributes
     ----------
-    network : ``"grid"`` (netgenerate, for tests) or a name of `NETWORKS`.
+    network : ``"grid"`` (netgenerate, for tests), a name of `NETWORKS`, or the path of
+        the user's own network: a SUMO ``.net.xml`` or an OpenStreetMap ``.osm`` extract
+        (`NETWORK_SUFFIXES`), cut to the study area like the shipped ones.
     regulation : ``"tlr"`` (traffic lights) or ``"vsr"`` (unregulated priority junctions).
     grid_size, grid_length : junctions per side and block length (m) of the grid network.
     area_half_width : half-width (m) of the square study area a real network is cut to.
@@ -71,7 +79,7 @@ class SumoParams(Params):
     birth_position_std, birth_velocity_std : `Setup.birth_cov` of entering vehicles.
     """
 
-    network: str = param(GRID, choices=(GRID, *NETWORKS))
+    network: str = param(GRID)
     regulation: str = param("tlr", choices=REGULATIONS)
     grid_size: int = param(3, ge=2)
     grid_length: float = param(100.0, gt=0, le=limits.LENGTH)
@@ -108,6 +116,9 @@ class SumoParams(Params):
     birth_velocity_std: float = param(10.0, ge=limits.STD_MIN, le=limits.SPEED)
 
     def validate(self) -> None:
+        self.require(self.network in (GRID, *NETWORKS) or self.network.lower().endswith(NETWORK_SUFFIXES),
+                     "network", f"be {GRID!r}, {' or '.join(map(repr, NETWORKS))}, or the path of a "
+                     "SUMO .net.xml or OpenStreetMap .osm file")
         self.require(self.duration >= self.dt, "duration", f"be >= dt = {self.dt}")
         self.require(self.zone_radii[0] <= self.zone_radii[1], "zone_radii",
                      "be (r_C, r_B) with 0 < r_C <= r_B")
@@ -120,6 +131,18 @@ class SumoParams(Params):
     @property
     def n_steps(self) -> int:
         return round(self.duration / self.dt)
+
+    @property
+    def own_network(self) -> bool:
+        """Whether `network` is the path of the user's own network file."""
+        return self.network not in (GRID, *NETWORKS)
+
+    @property
+    def network_label(self) -> str:
+        """What the network is called in descriptions: the city, the grid, or the file."""
+        if self.network == GRID:
+            return "generated grid"
+        return self.network if self.own_network else NETWORKS[self.network][2]
 
 
 #: the parameters that change the SUMO run or the feature geometry (the cache key)

@@ -31,7 +31,7 @@ import numpy as np
 from cooploc.scenarios.sumo.params import SumoParams
 from cooploc.types import FloatArray, IntArray
 
-__all__ = ["ZONES", "static_features", "zone_of"]
+__all__ = ["ZONES", "road_edges", "static_features", "zone_of"]
 
 ZONES = ("A", "B", "C")
 _KERB_OFFSET = 1.5  # m beyond the right edge of the rightmost lane: signal heads, poles
@@ -48,7 +48,8 @@ def _kerb_point(shape: FloatArray, offset: float, lateral: float) -> FloatArray:
     return point + lateral * np.array([direction[1], -direction[0]])  # right of travel
 
 
-def _road_edges(net: Any) -> list[Any]:
+def road_edges(net: Any) -> list[Any]:
+    """The edges of a sumolib network that are roads open to passenger cars."""
     return [e for e in net.getEdges() if e.getFunction() == "" and e.allows("passenger")]
 
 
@@ -62,7 +63,7 @@ def static_features(net: Any, params: SumoParams) -> tuple[FloatArray, IntArray]
     `max_static_features`, never closer than `min_feature_spacing`.
     """
     candidates: list[tuple[int, FloatArray]] = []
-    for edge in _road_edges(net):
+    for edge in road_edges(net):
         lane = edge.getLanes()[0]  # index 0 is the rightmost lane in SUMO
         shape = np.array(lane.getShape(), dtype=float)
         if shape.shape[0] < 2:

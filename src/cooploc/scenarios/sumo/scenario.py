@@ -29,38 +29,39 @@ and differ only in sensor noise.
 Randomness: `rng` is split into four children (traffic seed, prior, GNSS, V2F), in
 that order; `traffic_seed` reproduces the first.
 
-Complexity: a frame costs O(n K + n²) for n vehicles present and K features; the
-cost of a build is measured by ``benchmarks/sumo_traffic.py``.
+Complexity: a frame costs O((n + K) log(n + K) + E + M) for n vehicles present, K
+features, E links and M V2F rows (k-d trees, `geometry.links_within` and
+`close_pairs`; an n × K boolean mask is the only dense array); the cost of a build is
+measured by ``benchmarks/sumo_traffic.py``. A run longer than
+`streams.STREAM_FROM_STEPS` steps makes its frames on demand (`cooploc.streams`), so
+its memory does not grow with the horizon beyond the truth.
 """
 
 from __future__ import annotations
 
+import copy
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
+from cooploc.geometry import close_pairs, links_within
 from cooploc.motion import ConstantVelocity
 from cooploc.registry import Preset, register_scenario
 from cooploc.scenarios.sumo.cache import traffic
 from cooploc.scenarios.sumo.params import GRID, NETWORKS, STATIC_FEATURE_ID_OFFSET, SumoParams
 from cooploc.scenarios.sumo.roads import zone_of
 from cooploc.sensors import GnssPosition, RelativePosition
-from cooploc.types import Batch, FloatArray, Frame, IntArray, Recording, Setup, StateLayout, StateSet, Truth
+from cooploc.streams import Step, is_long, streamed
+from cooploc.types import Batch, FloatArray, Frame, Recording, Setup, StateLayout, StateSet, Truth
 
-__all__ = ["PRESETS", "TINY_GRID", "generate", "traffic_seed"]
+__all__ = ["CITY", "PRESETS", "TINY_GRID", "generate", "traffic_seed"]
 
 
 def _zone_covariances(params: SumoParams) -> FloatArray:
     """(3, 4, 4) GNSS covariance of zones A, B, C: diag(σ_p², σ_p², σ_v², σ_v²)."""
     p, v = np.asarray(params.gnss_position_std), np.asarray(params.gnss_velocity_std)
     return np.stack([np.diag([pi**2, pi**2, vi**2, vi**2]) for pi, vi in zip(p, v, strict=True)])
-
-
-def _links(ids: IntArray, positions: FloatArray, radius: float) -> IntArray:
-    """(E, 2) pairs i < j of vehicles within `radius` m."""
-    d = np.hypot(*(positions[:, None, :] - positions[None, :, :]).transpose(2, 0, 1))
-    i, j = np.nonzero(np.triu(d <= radius, k=1))
-    return np.stack([ids[i], ids[j]], axis=1)
 
 
 def _draw_traffic_seed(params: SumoParams, rng_traffic: np.random.Generator) -> int:
@@ -97,28 +98,39 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
     v2f = RelativePosition(default_cov=v2f_cov, state_indices=state, max_range=r)
     clutter_region = np.array([[-r, r], [-r, r], [-20.0, 20.0], [-20.0, 20.0]])
 
-    frames, origins = [], []
-    for k in range(T):
-        present = run.vehicle_present[k]
-        ids, states = run.vehicle_ids[present], run.vehicle_states[k, present]
-        zone = zone_of(states, run.centre, params.zone_radii)
-        parts = [zone_sensors[z].measure(ids[zone == z], states[zone == z], rng_gnss) for z in range(3)]
-        gnss_z = np.concatenate([b.z for b in parts])
-        gnss_cov = np.concatenate([b.cov for b in parts])
-        gnss_ids = np.concatenate([b.subject for b in parts])
-        order = np.argsort(gnss_ids, kind="stable")
-        gnss = Batch(gnss_z[order].reshape(-1, 4), gnss_cov[order].reshape(-1, 4, 4), gnss_ids[order],
-                     gnss_ids[order])
-        f_on = feature_present[k]
-        f_ids, f_states = feature_ids[f_on], feature_states[k, f_on]
-        distance = np.hypot(*(states[:, None, :2] - f_states[None, :, :2]).transpose(2, 0, 1))
-        v2f_batch, v2f_origin = v2f.measure(
-            ids, states, f_ids, f_states, rng_v2f, visible=distance <= r,
-            detection_probability=params.detection_probability, clutter_rate=params.clutter_rate,
-            clutter_region=clutter_region)
-        links = _links(ids, states[:, :2], params.communication_range)
-        frames.append(Frame(k, k * dt, ids, {"gnss": gnss, "v2f": v2f_batch}, links))
-        origins.append({"gnss": gnss_ids[order], "v2f": v2f_origin})
+    # what the steps read, and nothing else of `run`: a streamed recording keeps these
+    # (the states are swapped for the truth's copies below, so that one copy is kept)
+    vehicle_ids, vehicle_present, centre = run.vehicle_ids, run.vehicle_present, run.centre
+    states_of = {"vehicles": run.vehicle_states, "features": feature_states}
+
+    def steps() -> Iterator[Step]:
+        # from the generators' states now, so that every pass draws the same numbers
+        rng_g, rng_f = copy.deepcopy(rng_gnss), copy.deepcopy(rng_v2f)
+        vehicle_states, feature_states = states_of["vehicles"], states_of["features"]
+        for k in range(T):
+            present = vehicle_present[k]
+            ids, states = vehicle_ids[present], vehicle_states[k, present]
+            zone = zone_of(states, centre, params.zone_radii)
+            parts = [zone_sensors[z].measure(ids[zone == z], states[zone == z], rng_g) for z in range(3)]
+            gnss_z = np.concatenate([b.z for b in parts])
+            gnss_cov = np.concatenate([b.cov for b in parts])
+            gnss_ids = np.concatenate([b.subject for b in parts])
+            order = np.argsort(gnss_ids, kind="stable")
+            gnss = Batch(gnss_z[order].reshape(-1, 4), gnss_cov[order].reshape(-1, 4, 4), gnss_ids[order],
+                         gnss_ids[order])
+            f_on = feature_present[k]
+            f_ids, f_states = feature_ids[f_on], feature_states[k, f_on]
+            visible = np.zeros((ids.size, f_ids.size), dtype=bool)
+            visible[close_pairs(states[:, :2], f_states[:, :2], r)] = True
+            v2f_batch, v2f_origin = v2f.measure(
+                ids, states, f_ids, f_states, rng_f, visible=visible,
+                detection_probability=params.detection_probability, clutter_rate=params.clutter_rate,
+                clutter_region=clutter_region)
+            links = links_within(ids, states[:, :2], params.communication_range)
+            yield (Frame(k, k * dt, ids, {"gnss": gnss, "v2f": v2f_batch}, links),
+                   {"gnss": gnss_ids[order], "v2f": v2f_origin})
+
+    frames, origins = streamed(T, steps, lazy=is_long(T))
 
     at_start = run.vehicle_ids[run.vehicle_present[0]]
     prior_cov = np.diag([params.prior_position_std**2] * 2 + [params.prior_velocity_std**2] * 2)
@@ -126,7 +138,7 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
     prior_mean = start_states + rng_prior.multivariate_normal(np.zeros(4), prior_cov,
                                                               size=at_start.size)
     birth_cov = np.diag([params.birth_position_std**2] * 2 + [params.birth_velocity_std**2] * 2)
-    net = params.network if params.network == GRID else NETWORKS[params.network][2]
+    net = params.network if params.network == GRID else params.network_label
     setup = Setup(
         dt=dt,
         n_steps=T,
@@ -156,6 +168,7 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
         feature_present=feature_present,
         origin=origins,
     )
+    states_of.update(vehicles=truth.vehicle_states, features=truth.feature_states)  # equal values
     return Recording(setup, frames, truth)
 
 
@@ -164,18 +177,24 @@ def generate(params: SumoParams, rng: np.random.Generator) -> Recording:
 # ----------------------------------------------------------------------------
 
 
-def _preset(network: str, regulation: str, **overrides: Any) -> Preset:
+def _preset(network: str, regulation: str, *, size: str = "", **overrides: Any) -> Preset:
     label = "generated grid" if network == GRID else NETWORKS[network][2]
     lights = ("traffic-light regulated (TLR)" if regulation == "tlr"
               else "vehicle self-regulated (VSR, unsignalised priority junctions)")
     return Preset(
-        name=f"sumo-{network}-{regulation}",
+        name=f"sumo-{network}{size and '-' + size}-{regulation}",
         params=SumoParams(network=network, regulation=regulation, **overrides),
-        summary=f"SUMO urban traffic, {label}, {lights}; GNSS zones A/B/C, V2F R_s = 50 m",
+        summary=(f"SUMO urban traffic, {label}{size and ' (' + size + '-size cut)'}, {lights}; "
+                 "GNSS zones A/B/C, V2F R_s = 50 m"),
         doc=("Analogue of Brambilla et al. 2020 §VI (Figs. 16–17) on a SUMO network; see "
              "cooploc.scenarios.sumo for what differs from the paper's Turin arterial."),
         bound="oracle-kf",
     )
+
+
+#: the city-size cut: Berlin-Adlershof in a 4 km square, a vehicle trip every 0.2 s and a
+#: pedestrian every 2 s — over a thousand vehicles in the network at once
+CITY: dict[str, Any] = {"area_half_width": 2000.0, "vehicle_period": 0.2, "pedestrian_period": 2.0}
 
 
 #: a network and run small enough for the test suite: 2 × 2 grid of 80 m blocks, 20 s
@@ -189,6 +208,7 @@ PRESETS = register_scenario("sumo", generate, [
     _preset("braunschweig", "vsr"),
     _preset("berlin", "tlr"),
     _preset("berlin", "vsr"),
+    _preset("berlin", "tlr", size="city", **CITY),
     # tests and quick checks: a 3 × 3 grid of 100 m blocks, 60 s
     _preset(GRID, "tlr", duration=60.0, warmup=60.0, zone_radii=(40.0, 90.0)),
     _preset(GRID, "vsr", duration=60.0, warmup=60.0, zone_radii=(40.0, 90.0)),

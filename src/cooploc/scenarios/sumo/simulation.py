@@ -14,9 +14,14 @@ Choices the paper leaves open
 -----------------------------
 - Network: the Turin arterial is not available. Real networks are the ones the
   ``eclipse-sumo`` package ships under ``sumo/tools/game/`` (`NETWORKS`, located
-  through the installed package at run time; nothing is downloaded or copied), cut
-  with netconvert to a square of half-width `area_half_width` around the median of
-  their traffic lights (the dense core); the test network is a netgenerate grid.
+  through the installed package at run time; nothing is downloaded or copied), or the
+  user's own (`network` = a path, `network_file`): a SUMO ``.net.xml``, or an
+  OpenStreetMap extract that SUMO's netconvert imports (`_from_osm`: its default OSM
+  type map, geometry simplified, junction clusters joined, signals guessed from OSM's
+  ``highway=traffic_signals`` nodes, sidewalks guessed for the pedestrians). Every
+  real network is cut with netconvert to a square of half-width `area_half_width`
+  around the median of its traffic lights (the dense core; the centre of its bounding
+  box if it has none); the test network is a netgenerate grid.
 - Demand: the calibrated origin–destination demand is not available. randomTrips
   generates one vehicle trip every `vehicle_period` s with origins and destinations
   favouring the fringe by `fringe_factor` (most vehicles cross the area as through
@@ -55,12 +60,12 @@ from typing import Any
 
 import numpy as np
 
-from cooploc.errors import CooplocError
-from cooploc.scenarios.sumo.params import GRID, NETWORKS, PEDESTRIAN_ID_OFFSET, SumoParams
-from cooploc.scenarios.sumo.roads import static_features
+from cooploc.errors import CooplocError, InvalidInputError
+from cooploc.scenarios.sumo.params import GRID, NETWORKS, OSM_SUFFIXES, PEDESTRIAN_ID_OFFSET, SumoParams
+from cooploc.scenarios.sumo.roads import road_edges, static_features
 from cooploc.types import FloatArray, IntArray
 
-__all__ = ["SumoNotInstalledError", "Traffic", "network_path", "simulate_traffic"]
+__all__ = ["SumoNotInstalledError", "Traffic", "network_file", "network_path", "simulate_traffic"]
 
 
 class SumoNotInstalledError(CooplocError, ImportError):
@@ -156,12 +161,24 @@ def network_path(name: str) -> Path:
         raise SumoNotInstalledError(f"eclipse-sumo {sumo.__version__} does not ship {path}")
     return path
 
-def _run(args: list[str], what: str, cwd: Path, *, check: bool = True) -> bool:
-    """Run a SUMO tool in `cwd` (the tools may leave files in their working folder)."""
+def network_file(network: str) -> Path:
+    """The file of a shipped network (`network_path`) or of the user's own (its path)."""
+    if network in NETWORKS:
+        return network_path(network)
+    path = Path(network).expanduser()
+    if not path.is_file():
+        raise InvalidInputError(f"network={network!r}: no such file")
+    return path
+
+
+def _run(args: list[str], what: str, cwd: Path, *, check: bool = True,
+         error: type[CooplocError] = CooplocError) -> bool:
+    """Run a SUMO tool in `cwd` (the tools may leave files in their working folder); a
+    failure raises `error` (bad input where the user's own file caused it)."""
     done = subprocess.run(args, capture_output=True, text=True, check=False, cwd=cwd)
     if done.returncode != 0 and check:
-        raise CooplocError(f"{what} failed ({args[0]}, exit code {done.returncode}): "
-                           f"{(done.stderr + done.stdout).strip()[-800:]}")
+        output = " ".join((done.stderr + done.stdout).split())  # one line
+        raise error(f"{what} failed ({Path(args[0]).name}, exit code {done.returncode}): {output[-800:]}")
     return done.returncode == 0
 
 
@@ -182,8 +199,10 @@ def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Pat
         (x0, y0), (x1, y1) = net.getBBoxXY()
         centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
     else:
-        source = network_path(params.network)
-        net = sumolib.net.readNet(str(source))
+        source = network_file(params.network)
+        if params.network.lower().endswith(OSM_SUFFIXES):
+            source = _from_osm(params, source, folder)
+        net = _read_network(params, source, sumolib)
         lights = [n.getCoord() for n in net.getNodes() if n.getType() == "traffic_light"]
         if lights:
             centre = np.median(np.array(lights, dtype=float), axis=0)
@@ -192,10 +211,40 @@ def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Pat
             centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
         h = params.area_half_width
         box = f"{centre[0] - h},{centre[1] - h},{centre[0] + h},{centre[1] + h}"
+        what = "netconvert (study area, traffic lights)"
         _run([_binary("netconvert"), "-s", str(source), "--keep-edges.in-boundary", box,
               "--keep-edges.components", "1", "--tls.guess", "true", "--no-warnings", "true",
-              "-o", str(tlr)], "netconvert (study area, traffic lights)", folder)
+              "-o", str(tlr)], f"network={params.network!r}: {what}" if params.own_network else what,
+             folder, error=InvalidInputError if params.own_network else CooplocError)
     return tlr, centre
+
+
+def _from_osm(params: SumoParams, source: Path, folder: Path) -> Path:
+    """The SUMO network of an OpenStreetMap extract, converted by netconvert."""
+    out = folder / "osm.net.xml"
+    _run([_binary("netconvert"), "--osm-files", str(source), "--geometry.remove", "true",
+          "--junctions.join", "true", "--tls.guess-signals", "true", "--tls.join", "true",
+          "--sidewalks.guess", "true", "--no-warnings", "true", "-o", str(out)],
+         f"network={params.network!r}: netconvert (OpenStreetMap import)", folder, error=InvalidInputError)
+    return out
+
+
+def _read_network(params: SumoParams, path: Path, sumolib: Any) -> Any:
+    """sumolib's network of the user's file, or `InvalidInputError` if it is not one."""
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):
+            return sumolib.net.readNet(str(path))
+    except Exception as exc:  # sumolib raises whatever its XML parser met
+        text = " ".join(str(exc).split())[:300]
+        raise InvalidInputError(f"network={params.network!r}: not a readable SUMO network "
+                                f"({type(exc).__name__}: {text})") from exc
+
+
+def _check_drivable(params: SumoParams, net: Any) -> None:
+    if not road_edges(net):
+        raise InvalidInputError(
+            f"network={params.network!r}: no road open to passenger cars in the study area (a square "
+            f"of half-width area_half_width = {params.area_half_width:g} m around the network's centre)")
 
 
 def _unsignalised(tlr: Path, folder: Path, sumolib: Any) -> Path:
@@ -276,9 +325,11 @@ def simulate_traffic(params: SumoParams, seed: int) -> Traffic:
     with tempfile.TemporaryDirectory(prefix="cooploc-sumo-") as tmp:
         folder = Path(tmp)
         tlr, centre = _build_networks(params, folder, sumolib)
+        study_area = sumolib.net.readNet(str(tlr))
+        _check_drivable(params, study_area)
         # demand and features from the TLR network: both variants share them
         routes = _demand(params, tlr, folder, seed)
-        features, kind = static_features(sumolib.net.readNet(str(tlr)), params)
+        features, kind = static_features(study_area, params)
         net_file = tlr if params.regulation == "tlr" else _unsignalised(tlr, folder, sumolib)
         net = sumolib.net.readNet(str(net_file))
         signals = np.array([n.getCoord() for n in net.getNodes() if n.getType() == "traffic_light"],
