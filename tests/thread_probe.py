@@ -17,6 +17,7 @@ def thread_report(_task: Any = None) -> dict[str, Any]:
     from threadpoolctl import threadpool_info
 
     return {"pools": [(p["internal_api"], p["num_threads"]) for p in threadpool_info()],
+            "libraries": [p["filepath"] for p in threadpool_info()],
             "numba": numba.get_num_threads(),
             "env": {var: os.environ.get(var) for var in THREAD_VARIABLES},
             "pid": os.getpid()}

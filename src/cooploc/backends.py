@@ -92,13 +92,15 @@ def one_thread() -> None:
     """Make this worker process single-threaded (BLAS, OpenMP, numba), for good (see
     "Threads" in the module docstring): the initializer of the process pool, and run
     once in each dask worker before its first task."""
-    global _ONE_THREAD
-    if not _ONE_THREAD:
+    global _ONE_THREAD_PID
+    if _ONE_THREAD_PID != os.getpid():
         _set_threads(1)
-        _ONE_THREAD = True
+        _ONE_THREAD_PID = os.getpid()
 
 
-_ONE_THREAD = False  # per process: whether `one_thread` ran here
+# The process in which `one_thread` ran: a pid, not a flag, because a forked worker
+# inherits the parent's globals, and a parent that ran it once must not excuse its children.
+_ONE_THREAD_PID: int | None = None
 
 
 @contextlib.contextmanager
