@@ -16,8 +16,15 @@ def thread_report(_task: Any = None) -> dict[str, Any]:
     import scipy.linalg  # noqa: F401  (scipy's own BLAS, if it bundles one, loads here)
     from threadpoolctl import threadpool_info
 
-    return {"pools": [(p["internal_api"], p["num_threads"]) for p in threadpool_info()],
-            "libraries": [p["filepath"] for p in threadpool_info()],
+    # libsumo (the sumo extra) bundles its own libgomp and an OpenMP-built OpenBLAS, loaded
+    # once a SUMO scenario ran in this process; those copies serve SUMO's simulation, not
+    # cooploc's arithmetic, and threadpoolctl cannot reliably set or restore them (OpenMP's
+    # thread count is per calling thread), so they are reported apart.
+    pools = threadpool_info()
+    ours = [p for p in pools if "libsumo" not in p["filepath"]]
+    return {"pools": [(p["internal_api"], p["num_threads"]) for p in ours],
+            "libraries": [p["filepath"] for p in ours],
+            "sumo_pools": [(p["internal_api"], p["num_threads"]) for p in pools if p not in ours],
             "numba": numba.get_num_threads(),
             "env": {var: os.environ.get(var) for var in THREAD_VARIABLES},
             "pid": os.getpid()}
