@@ -115,6 +115,18 @@ def test_velocity_is_sumos_and_matches_the_motion(recording: Recording, tiny: su
     assert speed.max() < 20.0  # urban speed limit 13.9 m/s with SUMO's speed factor
 
 
+def test_pedestrians_walk_across_junctions_without_jumps(recording: Recording, tiny: sumo.SumoParams) -> None:
+    # without walking areas SUMO moves a pedestrian over a junction in one step (jumps of
+    # 5-17 m on the quick grid); no CV model allows that, and oracle-kf then drags the vehicles
+    # that see the pedestrian. A walk moves at most ~2 m/s (bends on walking areas)
+    truth = recording.truth
+    walking = truth.feature_ids >= sumo.PEDESTRIAN_ID_OFFSET
+    both = (truth.feature_present[1:] & truth.feature_present[:-1])[:, walking]
+    step = np.linalg.norm(np.diff(truth.feature_states[:, walking, :2], axis=0), axis=2)[both]
+    assert step.size > 100
+    assert step.max() < 3.0 * tiny.dt
+
+
 def test_gnss_covariance_follows_the_zone_each_step(recording: Recording, cache,
                                                     tiny: sumo.SumoParams, seed: int) -> None:
     zone_cov = np.stack([np.diag([p**2, p**2, v**2, v**2]) for p, v in

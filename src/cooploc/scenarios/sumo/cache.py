@@ -35,7 +35,13 @@ from pathlib import Path
 
 from cooploc.errors import ConfigError
 from cooploc.scenarios.sumo.params import GRID, TRAFFIC_KEYS, SumoParams
-from cooploc.scenarios.sumo.simulation import Traffic, _require_sumo, network_file, simulate_traffic
+from cooploc.scenarios.sumo.simulation import (
+    GRID_OPTIONS,
+    Traffic,
+    _require_sumo,
+    network_file,
+    simulate_traffic,
+)
 
 __all__ = ["CACHE_FORMAT", "CACHE_LIMIT_VARIABLE", "DEFAULT_CACHE_LIMIT", "cache_dir", "cache_key",
            "cache_limit", "cache_path", "evict", "traffic"]
@@ -94,9 +100,11 @@ def _file_digest(path: Path) -> str:
 
 
 def cache_key(params: SumoParams, seed: int) -> str:
-    """SHA-256 over the network file, the SUMO version, the seed and `TRAFFIC_KEYS`."""
+    """SHA-256 over the network file (the grid: its netgenerate options), the SUMO version,
+    the seed and `TRAFFIC_KEYS`."""
     sumo, _ = _require_sumo()
-    source = _file_digest(network_file(params.network)) if params.network != GRID else "netgenerate"
+    source = (_file_digest(network_file(params.network)) if params.network != GRID
+              else " ".join(("netgenerate", *GRID_OPTIONS)))
     payload = {"format": CACHE_FORMAT, "sumo": sumo.__version__, "network_file": source,
                "seed": int(seed), **{k: getattr(params, k) for k in TRAFFIC_KEYS}}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]

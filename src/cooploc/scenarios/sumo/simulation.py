@@ -21,7 +21,8 @@ Choices the paper leaves open
   ``highway=traffic_signals`` nodes, sidewalks guessed for the pedestrians). Every
   real network is cut with netconvert to a square of half-width `area_half_width`
   around the median of its traffic lights (the dense core; the centre of its bounding
-  box if it has none); the test network is a netgenerate grid.
+  box if it has none); the test network is a netgenerate grid (`GRID_OPTIONS`: with
+  crossings and walking areas, so that pedestrians walk across junctions).
 - Demand: the calibrated origin–destination demand is not available. randomTrips
   generates one vehicle trip every `vehicle_period` s with origins and destinations
   favouring the fringe by `fringe_factor` (most vehicles cross the area as through
@@ -65,7 +66,8 @@ from cooploc.scenarios.sumo.params import GRID, NETWORKS, OSM_SUFFIXES, PEDESTRI
 from cooploc.scenarios.sumo.roads import road_edges, static_features
 from cooploc.types import FloatArray, IntArray
 
-__all__ = ["SumoNotInstalledError", "Traffic", "network_file", "network_path", "simulate_traffic"]
+__all__ = ["GRID_OPTIONS", "SumoNotInstalledError", "Traffic", "network_file", "network_path",
+           "simulate_traffic"]
 
 
 class SumoNotInstalledError(CooplocError, ImportError):
@@ -182,6 +184,15 @@ def _run(args: list[str], what: str, cwd: Path, *, check: bool = True,
     return done.returncode == 0
 
 
+#: netgenerate options of the grid (`cache_key` hashes them). Crossings and walking areas:
+#: without them SUMO moves a pedestrian across a junction in one step (a jump of about
+#: the junction's width), which no motion model given to the estimators allows —
+#: `oracle-kf`, which keeps the pedestrian's track, then drags the vehicles that see it.
+GRID_OPTIONS = ("--default.lanenumber", "1", "--sidewalks.guess", "true", "--crossings.guess", "true",
+                "--walkingareas", "true", "--default-junction-type", "traffic_light", "--seed", "0",
+                "--no-warnings", "true")
+
+
 def _binary(name: str) -> str:
     sumo, _ = _require_sumo()
     return str(Path(sumo.SUMO_HOME) / "bin" / name)
@@ -192,9 +203,7 @@ def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Pat
     tlr = folder / "tlr.net.xml"
     if params.network == GRID:
         _run([_binary("netgenerate"), "--grid", "--grid.number", str(params.grid_size),
-              "--grid.length", str(params.grid_length), "--default.lanenumber", "1",
-              "--sidewalks.guess", "true", "--default-junction-type", "traffic_light",
-              "--seed", "0", "--no-warnings", "true", "-o", str(tlr)], "netgenerate", folder)
+              "--grid.length", str(params.grid_length), *GRID_OPTIONS, "-o", str(tlr)], "netgenerate", folder)
         net = sumolib.net.readNet(str(tlr))
         (x0, y0), (x1, y1) = net.getBBoxXY()
         centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
