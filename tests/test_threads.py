@@ -35,8 +35,8 @@ def test_limit_threads_bounds_this_process_and_restores():
     after = thread_report()
     # A library first loaded inside the block (numba's OpenMP layer, say, once set_num_threads
     # runs) is not in `before`; the promise is about the libraries that were there.
-    threads_before = dict(zip(before["libraries"], (n for _, n in before["pools"])))
-    threads_after = dict(zip(after["libraries"], (n for _, n in after["pools"])))
+    threads_before = dict(zip(before["libraries"], (n for _, n in before["pools"]), strict=True))
+    threads_after = dict(zip(after["libraries"], (n for _, n in after["pools"]), strict=True))
     assert {lib: threads_after[lib] for lib in threads_before} == threads_before, (before, after)
     assert after["env"] == before["env"]
 
