@@ -72,3 +72,13 @@ def froehle_small(seed: int) -> Recording:
 def traffic(seed: int) -> Recording:
     """3 vehicles: vehicle 1 enters at step 5, vehicle 2 is away for steps 10–19."""
     return traffic_recording([seed, 2])
+
+
+@pytest.fixture(scope="module")
+def sumo_cache(tmp_path_factory: pytest.TempPathFactory):
+    """A SUMO cache folder of the test module's own (``COOPLOC_CACHE_DIR`` pointed at it),
+    so that SUMO tests neither read nor fill the user's cache."""
+    folder = tmp_path_factory.mktemp("sumo-cache")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("COOPLOC_CACHE_DIR", str(folder))
+        yield folder / "sumo"

@@ -31,16 +31,8 @@ def test_contract_with_potential_features(seed: int) -> None:
     assert any(v == "passed" for v in outcome.values()), outcome
 
 
-@pytest.fixture(scope="module")
-def cache(tmp_path_factory: pytest.TempPathFactory):
-    folder = tmp_path_factory.mktemp("sumo-cache")
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("COOPLOC_CACHE_DIR", str(folder))
-        yield folder / "sumo"
-
-
 @pytest.mark.slow
-def test_beats_gnss_on_sumo_traffic(cache, seed: int) -> None:
+def test_beats_gnss_on_sumo_traffic(sumo_cache, seed: int) -> None:
     from cooploc.scenarios import get_preset, sumo
 
     params = get_preset("sumo-grid-tlr").params.with_overrides({**sumo.TINY_GRID, "duration": 40.0})

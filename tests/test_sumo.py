@@ -21,20 +21,12 @@ from helpers import run_estimator
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory: pytest.TempPathFactory):
-    folder = tmp_path_factory.mktemp("sumo-cache")
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setenv("COOPLOC_CACHE_DIR", str(folder))
-        yield folder / "sumo"
-
-
-@pytest.fixture(scope="module")
 def tiny() -> sumo.SumoParams:
     return get_preset("sumo-grid-tlr").params.with_overrides(sumo.TINY_GRID)
 
 
 @pytest.fixture(scope="module")
-def recording(cache, tiny: sumo.SumoParams, seed: int) -> Recording:
+def recording(sumo_cache, tiny: sumo.SumoParams, seed: int) -> Recording:
     return sumo.generate(tiny, np.random.default_rng([seed, 80]))
 
 
@@ -127,7 +119,7 @@ def test_pedestrians_walk_across_junctions_without_jumps(recording: Recording, t
     assert step.max() < 3.0 * tiny.dt
 
 
-def test_gnss_covariance_follows_the_zone_each_step(recording: Recording, cache,
+def test_gnss_covariance_follows_the_zone_each_step(recording: Recording, sumo_cache,
                                                     tiny: sumo.SumoParams, seed: int) -> None:
     zone_cov = np.stack([np.diag([p**2, p**2, v**2, v**2]) for p, v in
                          zip(tiny.gnss_position_std, tiny.gnss_velocity_std, strict=True)])
@@ -170,7 +162,7 @@ def test_v2f_rows_within_sensing_range_and_links_within_communication_range(
     assert not np.diff(truth.feature_states[:, static], axis=0).any()  # static features stay
 
 
-def test_static_features_are_spread_and_capped(cache, tiny: sumo.SumoParams, seed: int) -> None:
+def test_static_features_are_spread_and_capped(sumo_cache, tiny: sumo.SumoParams, seed: int) -> None:
     run = sumo.traffic(tiny, _traffic_seed(seed))
     points = run.static_features
     assert 0 < points.shape[0] <= tiny.max_static_features
@@ -180,7 +172,7 @@ def test_static_features_are_spread_and_capped(cache, tiny: sumo.SumoParams, see
     assert run.signals.shape[0] > 0  # TLR grid: signalised junctions
 
 
-def test_tlr_and_vsr_share_network_features_and_demand(cache, tiny: sumo.SumoParams) -> None:
+def test_tlr_and_vsr_share_network_features_and_demand(sumo_cache, tiny: sumo.SumoParams) -> None:
     tlr = sumo.traffic(tiny, 3)
     vsr = sumo.traffic(dataclasses.replace(tiny, regulation="vsr"), 3)
     assert tlr.signals.shape[0] > 0 and vsr.signals.shape[0] == 0
@@ -225,9 +217,9 @@ def _assert_same(a: Recording, b: Recording) -> None:
         np.testing.assert_array_equal(fa.links, fb.links)
 
 
-def test_cache_is_deterministic_and_reused(recording: Recording, cache, tiny: sumo.SumoParams,
+def test_cache_is_deterministic_and_reused(recording: Recording, sumo_cache, tiny: sumo.SumoParams,
                                            seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
-    files = sorted(cache.glob("*.npz"))
+    files = sorted(sumo_cache.glob("*.npz"))
     assert files, "the traffic was cached"
     key = sumo.cache_key(tiny, _traffic_seed(seed))
     assert any(key in f.name for f in files)
@@ -251,7 +243,7 @@ def test_cache_is_deterministic_and_reused(recording: Recording, cache, tiny: su
     assert sumo.cache_key(tiny, 2) != sumo.cache_key(tiny, 1)
 
 
-def test_fixed_traffic_seed_shares_traffic_across_runs(cache, tiny: sumo.SumoParams) -> None:
+def test_fixed_traffic_seed_shares_traffic_across_runs(sumo_cache, tiny: sumo.SumoParams) -> None:
     fixed = dataclasses.replace(tiny, traffic_seed=3)
     a = sumo.generate(fixed, np.random.default_rng(1))
     b = sumo.generate(fixed, np.random.default_rng(2))
@@ -267,7 +259,7 @@ def test_cache_dir_follows_the_environment(monkeypatch: pytest.MonkeyPatch, tmp_
     assert sumo.cache_dir() == tmp_path / "xdg" / "cooploc" / "sumo"
 
 
-def test_traci_fallback_gives_the_same_traffic(cache, tiny: sumo.SumoParams,
+def test_traci_fallback_gives_the_same_traffic(sumo_cache, tiny: sumo.SumoParams,
                                                monkeypatch: pytest.MonkeyPatch) -> None:
     in_process = sumo.simulate_traffic(tiny, 4)
     monkeypatch.setitem(sys.modules, "libsumo", None)  # no libsumo: SUMO runs as a subprocess
