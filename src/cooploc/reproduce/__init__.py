@@ -6,8 +6,9 @@ numbers and statements beside ours. An experiment uses every estimator its paper
 compares *that is registered*, so a method issue only adds its estimator (and, if it
 needs, a line to its paper's entry).
 
-Outputs go to `OUT/`: `fig*.png`, `report.md`, and `data.json` with every number the
-figures show.
+Outputs go to `OUT/`: `fig*.png`, `report.md`, `data.json` with every number the
+figures show, and `claims.json`: each claim of the paper with the verdict computed from
+those numbers (`cooploc.reproduce.claims`).
 """
 
 from __future__ import annotations

@@ -2,12 +2,14 @@
 
 A paper module declares one `PaperExperiment` — name, title, paper file, the
 estimators the paper compares, default and quick run counts, the figure files — and
-two functions of its own:
+two or three functions of its own:
 
 - `compute(context) -> data`: the runs, sweeps and figures; every number the figures
   show goes into the returned dict;
 - `report(data) -> lines`: the Markdown text that sets the paper's statements beside
-  ours.
+  ours;
+- `claims(data) -> [Claim]` (optional): the paper's statements with verdicts computed
+  from `data` (`cooploc.reproduce.claims`), written to claims.json.
 
 `PaperExperiment.run(options)` does the rest: it keeps the compared estimators that
 are registered (a method issue only registers its estimator), resolves the run count,
@@ -41,6 +43,7 @@ from cooploc.experiment import (
     run_sweep,
 )
 from cooploc.registry import estimators, make_estimator
+from cooploc.reproduce.claims import Claim
 from cooploc.types import Estimate, Recording
 
 __all__ = [
@@ -198,6 +201,8 @@ class PaperExperiment:
     runs, quick_runs : Monte Carlo runs per point, by default and with ``--quick``.
     figures : (caption, file name) of each figure `compute` writes, in report order.
     data_indent : JSON indentation of data.json (None: one line, for bulky data).
+    claims : data → the paper's claims with computed verdicts (`cooploc.reproduce.claims`);
+        written to claims.json. The report shows them where it calls `claims_table`.
     """
 
     name: str
@@ -210,6 +215,7 @@ class PaperExperiment:
     quick_runs: int = 2
     figures: tuple[tuple[str, str], ...] = ()
     data_indent: int | None = 2
+    claims: Callable[[dict[str, Any]], Sequence[Claim]] | None = None
 
     def run(self, options: ReproduceOptions) -> Path:
         out = Path(options.out)
@@ -219,6 +225,9 @@ class PaperExperiment:
         data = {"runs": runs, "seed": options.seed, "quick": options.quick,
                 "compared": context.compared, **self.compute(context)}
         (out / "data.json").write_text(json.dumps(data, indent=self.data_indent) + "\n")
+        if self.claims is not None:
+            records = [c.to_dict() for c in self.claims(data)]
+            (out / "claims.json").write_text(json.dumps(records, indent=2, ensure_ascii=False) + "\n")
         (out / "report.md").write_text(self.markdown(data))
         return out
 
