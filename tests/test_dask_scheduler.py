@@ -213,3 +213,20 @@ def test_scheduler_address_order(monkeypatch):
         monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "tcp://from-env:2")
         assert scheduler_address() == "tcp://from-env:2"
         assert scheduler_address("tcp://given:3") == "tcp://given:3"
+
+
+def _square_and_pid(x: int) -> tuple[int, int]:
+    return x * x, os.getpid()
+
+
+@pytest.mark.slow
+def test_reproduce_map_runs_on_the_scheduler(cluster, tmp_path):
+    """A paper experiment's own tasks (`ReproduceContext.map`, e.g. plbp's snapshots) go to
+    the scheduler too, and come back in task order."""
+    from cooploc.reproduce.base import ReproduceContext, ReproduceOptions
+
+    options = ReproduceOptions(out=tmp_path, backend="dask", scheduler=cluster)
+    context = ReproduceContext(options, tmp_path, runs=1, compared=[])
+    results = context.map(_square_and_pid, list(range(7)), "squares")
+    assert [r[0] for r in results] == [x * x for x in range(7)]
+    assert os.getpid() not in {r[1] for r in results}

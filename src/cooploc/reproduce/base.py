@@ -25,14 +25,12 @@ tasks) with the options' progress bars.
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cooploc.backends import one_thread
+from cooploc.backends import completed
 from cooploc.experiment import (
     ExperimentConfig,
     ExperimentResult,
@@ -143,30 +141,22 @@ class ReproduceContext:
         return points
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], label: str) -> list[Any]:
-        """`fn` over `tasks`, results in task order: worker processes unless the backend is
-        serial (for work that is not an `ExperimentConfig`); a progress bar if asked."""
-        workers = self.options.workers or os.cpu_count() or 1
-        parallel = self.options.backend != "serial" and workers > 1 and len(tasks) > 1
+        """`fn` over `tasks`, results in task order, on the options' backend (worker
+        processes, or the Dask scheduler of ``--scheduler``) for work that is not an
+        `ExperimentConfig`; a progress bar if asked. `fn` must be a module-level function."""
         progress = None
         if self.options.progress:
             from rich.progress import Progress
             progress = Progress()
             bar = progress.add_task(label, total=len(tasks))
             progress.start()
-        results: list[Any] = []
+        results: list[Any] = [None] * len(tasks)
         try:
-            if parallel:
-                pool = ProcessPoolExecutor(max_workers=min(workers, len(tasks)), initializer=one_thread)
-                with pool:
-                    for result in pool.map(fn, tasks):
-                        results.append(result)
-                        if progress is not None:
-                            progress.advance(bar)
-            else:
-                for task in tasks:
-                    results.append(fn(task))
-                    if progress is not None:
-                        progress.advance(bar)
+            for i, result in completed(fn, tasks, self.options.backend, self.options.workers,
+                                       scheduler=self.options.scheduler):
+                results[i] = result
+                if progress is not None:
+                    progress.advance(bar)
         finally:
             if progress is not None:
                 progress.stop()
