@@ -387,6 +387,9 @@ def reproduce(
     threads: Annotated[int | None, typer.Option(help=THREADS_HELP)] = None,
     quick: Annotated[bool, typer.Option(help="Small version to check the pipeline.")] = False,
     progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
+    resume: Annotated[bool, typer.Option(
+        "--resume", help="Go on with an interrupted reproduction in --out: its finished runs "
+                         "(OUT/runs/) are kept, not run again.")] = False,
 ) -> None:
     """Reproduce a paper's figures: PNG files and a Markdown report beside the paper's numbers."""
     from cooploc.backends import limit_threads
@@ -402,7 +405,7 @@ def reproduce(
     folder = out or Path("results") / f"reproduce-{paper}"
     with limit_threads(threads):
         experiment.run(ReproduceOptions(folder, runs, seed, backend, workers, quick, progress,
-                                        scheduler=scheduler))
+                                        scheduler=scheduler, resume=resume))
     Console().print(f"{experiment.title}: report at {folder / 'report.md'}")
 
 

@@ -79,6 +79,7 @@ __all__ = [
     "estimate",
     "execute",
     "iter_runs",
+    "iter_tasks",
     "run_experiment",
     "run_generators",
     "run_one",
@@ -448,6 +449,20 @@ def iter_runs(config: ExperimentConfig, progress: bool = False,
                                    scheduler=config.scheduler, announce=bar.note):
             tick()
             yield result
+
+
+def iter_tasks(tasks: Sequence[Task], backend: str = "processes", workers: int | None = None, *,
+               scheduler: str | None = None, label: str = "runs", progress: bool = False
+               ) -> Iterator[tuple[int, RunResult]]:
+    """(index in `tasks`, result) of every (config, run) task as it finishes, with the
+    backend, under one progress bar labelled `label` (for callers that keep each run as it
+    finishes, e.g. `reproduce`'s checkpoints)."""
+    bar = _Progress(len(tasks), label, progress)
+    with bar as tick:
+        for i, result in completed(_run_task, tasks, backend, workers, scheduler=scheduler,
+                                   announce=bar.note):
+            tick()
+            yield i, result
 
 
 def run_sweep(

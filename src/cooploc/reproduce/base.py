@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -34,13 +34,14 @@ from cooploc.backends import completed
 from cooploc.experiment import (
     ExperimentConfig,
     ExperimentResult,
+    RunResult,
     estimate,
-    run_experiment,
+    iter_tasks,
     run_generators,
     run_recording,
-    run_sweep,
 )
 from cooploc.registry import estimators, make_estimator
+from cooploc.reproduce.checkpoint import Checkpoint, task_key
 from cooploc.reproduce.claims import Claim
 from cooploc.types import Estimate, Recording
 
@@ -65,6 +66,8 @@ class ReproduceOptions:
     backend, workers, scheduler : as for `cooploc run`.
     quick : a small version (few runs, short trajectories) to check the pipeline.
     progress : show progress bars.
+    resume : go on with an interrupted experiment in `out`: its finished runs and tasks
+        (``out/runs/``, `cooploc.reproduce.checkpoint`) are kept, not run again.
     """
 
     out: Path
@@ -75,6 +78,7 @@ class ReproduceOptions:
     quick: bool = False
     progress: bool = False
     scheduler: str | None = None
+    resume: bool = False
 
 
 def registered(names: Sequence[str]) -> list[str]:
@@ -93,12 +97,14 @@ class ReproduceContext:
     out : the results folder (exists).
     runs : Monte Carlo runs per point: ``--runs``, else the experiment's quick or default count.
     compared : the registered ones of the paper's compared estimators.
+    checkpoint : where each finished run and task is kept for ``--resume`` (None: nowhere).
     """
 
     options: ReproduceOptions
     out: Path
     runs: int
     compared: list[str]
+    checkpoint: Checkpoint | None = None
 
     @property
     def quick(self) -> bool:
@@ -127,7 +133,10 @@ class ReproduceContext:
     def run(self, config: ExperimentConfig) -> ExperimentResult:
         """Every run of `config` (progress bar if asked); a paper's figures need every
         estimator-run, so a failed one stops here with its `EstimatorError`."""
-        result = run_experiment(config, progress=self.options.progress)
+        from cooploc.budget import check_memory
+
+        check_memory(config)
+        (result,) = self._results([config], f"{config.scenario}: runs")
         result.raise_failure()
         return result
 
@@ -135,32 +144,67 @@ class ReproduceContext:
               ) -> list[tuple[Any, ExperimentResult]]:
         """`config` at each value of scenario parameter `key` (common random numbers); a
         failed estimator-run stops here, as in `run`."""
-        points = run_sweep(config, key, values, progress=self.options.progress)
+        configs = [replace(config, scenario_params=config.scenario_params.with_overrides({key: v}))
+                   for v in values]
+        points = list(zip(values, self._results(configs, f"sweep {key}"), strict=True))
         for _, result in points:
             result.raise_failure()
         return points
 
+    def _results(self, configs: Sequence[ExperimentConfig], label: str) -> list[ExperimentResult]:
+        """The runs of every config, all scheduled together; runs the checkpoint holds are
+        taken from it, the others saved to it as they finish (failed ones are not)."""
+        tasks = [(c, r) for c in configs for r in range(c.runs)]
+        keys = [self.checkpoint.run_key(c, r) if self.checkpoint else "" for c, r in tasks]
+        results: dict[int, RunResult] = {}
+        for i, key in enumerate(keys):
+            found, value = self.checkpoint.load(key) if self.checkpoint else (False, None)
+            if found:
+                results[i] = value
+        todo = [i for i in range(len(tasks)) if i not in results]
+        first = configs[0]
+        for j, result in iter_tasks([tasks[i] for i in todo], first.backend, first.workers,
+                                    scheduler=first.scheduler, label=label,
+                                    progress=self.options.progress):
+            results[todo[j]] = result
+            if self.checkpoint is not None and not result.failures:
+                self.checkpoint.save(keys[todo[j]], result)
+        out, i = [], 0
+        for c in configs:
+            out.append(ExperimentResult(c, tuple(results[k] for k in range(i, i + c.runs))))
+            i += c.runs
+        return out
+
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], label: str) -> list[Any]:
         """`fn` over `tasks`, results in task order, on the options' backend (worker
         processes, or the Dask scheduler of ``--scheduler``) for work that is not an
-        `ExperimentConfig`; a progress bar if asked. `fn` must be a module-level function."""
+        `ExperimentConfig`; a progress bar if asked; finished tasks are kept in the
+        checkpoint. `fn` must be a module-level function."""
+        keys = [task_key(fn, t) for t in tasks] if self.checkpoint else []
+        results: dict[int, Any] = {}
+        for i, key in enumerate(keys):
+            found, value = self.checkpoint.load(key)
+            if found:
+                results[i] = value
+        todo = [i for i in range(len(tasks)) if i not in results]
         progress = None
         if self.options.progress:
             from rich.progress import Progress
             progress = Progress()
-            bar = progress.add_task(label, total=len(tasks))
+            bar = progress.add_task(label, total=len(todo))
             progress.start()
-        results: list[Any] = [None] * len(tasks)
         try:
-            for i, result in completed(fn, tasks, self.options.backend, self.options.workers,
-                                       scheduler=self.options.scheduler):
-                results[i] = result
+            for j, result in completed(fn, [tasks[i] for i in todo], self.options.backend,
+                                       self.options.workers, scheduler=self.options.scheduler):
+                results[todo[j]] = result
+                if self.checkpoint is not None:
+                    self.checkpoint.save(keys[todo[j]], result)
                 if progress is not None:
                     progress.advance(bar)
         finally:
             if progress is not None:
                 progress.stop()
-        return results
+        return [results[i] for i in range(len(tasks))]
 
 
 def replay(config: ExperimentConfig, run: int = 0) -> tuple[Recording, dict[str, list[Estimate]]]:
@@ -211,7 +255,8 @@ class PaperExperiment:
         out = Path(options.out)
         out.mkdir(parents=True, exist_ok=True)
         runs = options.runs or (self.quick_runs if options.quick else self.runs)
-        context = ReproduceContext(options, out, runs, registered(self.compared))
+        checkpoint = Checkpoint(out, resume=options.resume)
+        context = ReproduceContext(options, out, runs, registered(self.compared), checkpoint)
         data = {"runs": runs, "seed": options.seed, "quick": options.quick,
                 "compared": context.compared, **self.compute(context)}
         (out / "data.json").write_text(json.dumps(data, indent=self.data_indent) + "\n")
@@ -219,6 +264,7 @@ class PaperExperiment:
             records = [c.to_dict() for c in self.claims(data)]
             (out / "claims.json").write_text(json.dumps(records, indent=2, ensure_ascii=False) + "\n")
         (out / "report.md").write_text(self.markdown(data))
+        checkpoint.remove()  # finished: nothing to resume
         return out
 
     def markdown(self, data: dict[str, Any]) -> str:
