@@ -44,6 +44,18 @@ def test_memory_grows_with_steps_runs_and_the_joint_state():
     assert need >= 8 * dim**2 and "oracle-kf's state" in what  # the dense joint covariance
 
 
+def test_a_streamed_recording_counts_only_what_it_keeps():
+    """Long brambilla and SUMO runs make their frames on demand (`cooploc.streams`): their
+    worker's recording is counted at the streamed rate, which tracemalloc measured."""
+    short = _config("brambilla-crossroad", overrides={"n_steps": 1000}, runs=1, backend="serial")
+    long = _config("brambilla-crossroad", overrides={"n_steps": 1001}, runs=1, backend="serial")
+    assert not short.scenario_params.sizes().streamed and long.scenario_params.sizes().streamed
+    assert estimate_memory(long)[0] < 0.5 * estimate_memory(short)[0]
+    assert cooploc.presets()["sumo-grid-tlr"].params.sizes().streamed is False
+    long_sumo = cooploc.presets()["sumo-grid-tlr"].params.with_overrides({"duration": 1000.0})
+    assert long_sumo.sizes().streamed
+
+
 def test_a_scenario_without_sizes_is_not_checked(monkeypatch):
     config = dataclasses.replace(_config(), scenario_params=Params())
     assert estimate_memory(config) == (0.0, "")

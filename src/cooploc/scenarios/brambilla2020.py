@@ -147,7 +147,7 @@ class BrambillaParams(Params):
 
     def sizes(self) -> Sizes:
         """Steps, vehicles and features of one run (for `cooploc.budget`)."""
-        return Sizes(self.n_steps, self.n_vehicles, self.n_features)
+        return Sizes(self.n_steps, self.n_vehicles, self.n_features, streamed=is_long(self.n_steps))
 
 
 def _road_starts(p: BrambillaParams) -> tuple[np.ndarray, np.ndarray]:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from cooploc.budget import Sizes
 from cooploc.params import Params, param
 from cooploc.scenarios import limits
+from cooploc.streams import is_long
 
 __all__ = [
     "GRID",
@@ -126,7 +127,7 @@ class SumoParams(Params):
     def sizes(self) -> Sizes:
         """A floor for `cooploc.budget`: how many vehicles share a step depends on the traffic,
         so only one is counted, beside every static feature."""
-        return Sizes(self.n_steps, 1, self.max_static_features)
+        return Sizes(self.n_steps, 1, self.max_static_features, streamed=is_long(self.n_steps))
 
     @property
     def n_steps(self) -> int:
