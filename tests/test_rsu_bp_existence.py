@@ -143,3 +143,23 @@ def test_grouped_gaussian_log_sums_match_numpy() -> None:
     for g in range(6):
         want = np.logaddexp.reduce(each[group == g], axis=0) if (group == g).any() else np.full(N, -np.inf)
         np.testing.assert_allclose(got[g], want, rtol=1e-10, atol=1e-10)
+
+
+def test_grouped_log_sums_of_impossible_pairs_are_minus_infinity_not_nan() -> None:
+    """A pair whose association has probability 0 (log coefficient −inf) adds nothing: a
+    group of only such pairs is −inf, and one with a possible pair equals that pair alone
+    (sumo-grid-tlr step 36 had whole NaN messages from −inf − −inf)."""
+    from cooploc.estimators.rsu_bp.vehicles import log_gauss_groups
+
+    rng = np.random.default_rng(6)
+    samples = rng.normal(size=(1, 20, 4))
+    H = np.eye(4)[:2]
+    offset = rng.normal(size=(5, 2))
+    cov = np.broadcast_to(np.eye(2), (5, 2, 2)).copy()
+    coef = np.array([-np.inf, -np.inf, -np.inf, 0.3, -np.inf])
+    group = np.array([0, 0, 1, 1, 1])
+    got = log_gauss_groups(offset, cov, coef, np.zeros(5, np.int64), group, 2, samples, H)
+    assert np.isneginf(got[0]).all()
+    alone = log_gauss_groups(offset[3:4], cov[3:4], coef[3:4], np.zeros(1, np.int64), np.zeros(1, np.int64),
+                             1, samples, H)
+    np.testing.assert_array_equal(got[1], alone[0])

@@ -69,6 +69,8 @@ def group_log_gauss(offset: np.ndarray, inv_chol: np.ndarray, log_coef: np.ndarr
                 for l in range(N):
                     v = c0 - 0.5 * q[l]
                     cur = out[g, l]
+                    if v == -math.inf:  # adds nothing (and −inf − −inf below would be NaN)
+                        continue
                     if v > cur:
                         out[g, l] = v + math.log1p(math.exp(cur - v))
                     else:
