@@ -19,18 +19,30 @@ Runs: 1000 per vehicle count by default, as the paper (`--runs` to change).
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+import time
 from typing import Any
 
 import numpy as np
 
-from cooploc.experiment import ExperimentConfig
+from cooploc import least_squares
+from cooploc.experiment import ExperimentConfig, estimate, run_recording
 from cooploc.metrics import VEHICLE, total_rmse_per_run_and_step
 from cooploc.plots import format_number, line_panels, pyplot, save_figure, trajectory_panel
+from cooploc.registry import get_preset, make_estimator
 from cooploc.reproduce.base import PaperExperiment, ReproduceContext, replay
 
 __all__ = ["EXPERIMENT", "PAPER_TABLE_I", "PAPER_TABLE_II"]
 
 KALMAN = "gnss-kf"
+#: the known-association bound of the gulati-* presets (the radar pose estimated, smoothed)
+BOUND = "oracle-pose-smoother"
+#: the graphs of the solver and information study: label → (factor kind, topology factors
+#: in the graph, the new factor's σ_s with the odometry's share)
+GRAPHS = {"no topology": ("old", False, False), "old": ("old", True, False), "new": ("new", True, False),
+          "new, odometry noise in σ_s": ("new", True, True)}
+STUDY_RUNS, STUDY_REPEATS = 100, 3
 VEHICLE_COUNTS = (2, 3, 4)
 #: Table I of the paper: average RMSE (eq. 21) for new factor, old factor, Kalman filter.
 PAPER_TABLE_I = {2: (5.211, 7.187, 8.423), 3: (7.065, 7.076, 10.310), 4: (7.321, 8.184, 11.908)}
@@ -45,7 +57,7 @@ def _figures(ctx: ReproduceContext, config: ExperimentConfig, row: dict[str, Any
     """Figs. 3/5 (trajectories of run 0) and 4/6 (eq. 21 error per step) for n vehicles."""
     names = [e.name for e in config.estimators]
     shown = [x for x in names if x != "fg-isam2"] if n == 4 else \
-        [x for x in ("fg-topology-old", "fg-topology-new") if x in names]
+        [x for x in ("fg-topology-old", "fg-topology-new", BOUND) if x in names]
     fig_tracks, fig_rmse = FIGURES[n]
     recording, estimates = replay(config, 0)
     fig, ax = pyplot().subplots(figsize=(6.5, 5.5))
@@ -61,10 +73,76 @@ def _figures(ctx: ReproduceContext, config: ExperimentConfig, row: dict[str, Any
                 "step", "system RMSE, eq. 21 [m]", markers=False, size=(6.5, 4.0))
 
 
+def _study_run(config: ExperimentConfig, run: int, repeats: int) -> dict[str, dict[str, float]]:
+    """One run's solver and information study (module docstring, "New vs old").
+
+    For each graph of `GRAPHS` (same recording, same initial guess): the LM solve alone,
+    warm (best of `repeats`), its iterations, the claimed posterior position variance
+    (mean of tr P / 2 over variables) and the achieved one (mean squared error / 2), and
+    the position NEES; the same figures of the bound's smoothed estimates.
+    """
+    from cooploc.estimators.factor_graph import FactorGraphParams, GraphData, GraphProblem
+    from cooploc.estimators.factor_graph.estimates import PositionFilter
+    from cooploc.least_squares import solve_lm
+
+    recording = run_recording(config, run)
+    truth = recording.truth
+    true_positions = np.concatenate([  # in the graphs' order: step by step, ids sorted
+        truth.vehicle_states[k, np.searchsorted(truth.vehicle_ids, np.sort(f.vehicles)), :2]
+        for k, f in enumerate(recording.frames)])
+    out: dict[str, dict[str, float]] = {}
+    for label, (kind, topology, odometry_noise) in GRAPHS.items():
+        data = GraphData(recording.setup, kind, FactorGraphParams().gap_variance, odometry_noise)
+        start = PositionFilter()  # the batch estimators' own initial guess
+        x0 = np.concatenate([start.step(data.add_frame(frame)).mean for frame in recording.frames])
+        problem = GraphProblem.of(data)
+        if not topology:
+            problem = dataclasses.replace(problem, topology=())
+        best, result = np.inf, None
+        for _ in range(repeats):
+            start = time.perf_counter()
+            result = solve_lm(problem.linearize, x0)
+            best = min(best, time.perf_counter() - start)
+        assert result is not None and result.cov is not None
+        out[label] = {"solve_seconds": best, "iterations": result.iterations,
+                      **_information(result.x, result.cov, true_positions)}
+    bound = make_estimator(BOUND, recording.setup, None, np.random.default_rng(0), truth)
+    smoothed = estimate(bound, recording)
+    x = np.concatenate([e.vehicles.mean[:, :2] for e in smoothed])
+    cov = np.concatenate([e.vehicles.cov[:, :2, :2] for e in smoothed])
+    out[BOUND] = _information(x, cov, true_positions)
+    return out
+
+
+def _information(x: np.ndarray, cov: np.ndarray, true: np.ndarray) -> dict[str, float]:
+    """Claimed variance (mean tr P / 2), achieved variance (mean ‖e‖² / 2), mean NEES (χ²₂: 2)."""
+    e = x - true
+    nees = np.einsum("ni,ni->n", e, np.linalg.solve(cov, e[..., None])[..., 0])
+    return {"claimed_variance": float(np.trace(cov, axis1=1, axis2=2).mean() / 2),
+            "achieved_variance": float(np.mean(e**2)), "nees": float(nees.mean())}
+
+
+def _study(ctx: ReproduceContext, config: ExperimentConfig, runs: int) -> dict[str, Any]:
+    """`_study_run` over the first `runs` runs, in the worker processes; per graph the
+    per-run values (lists) and the JIT time of the solver's compiled kernel in this process."""
+    start = time.perf_counter()
+    least_squares.compile_kernels()  # numba: compiled, or loaded from its cache, once per process
+    jit = time.perf_counter() - start
+    rows = ctx.map(functools.partial(_study_run, config, repeats=STUDY_REPEATS), list(range(runs)),
+                   f"gulati solver study, {config.scenario}")
+    study: dict[str, Any] = {"runs": runs, "repeats": STUDY_REPEATS,
+                             "kernel_first_call_seconds_main_process": jit}
+    for label in rows[0]:
+        study[label] = {key: [r[label][key] for r in rows] for key in rows[0][label]}
+    return study
+
+
 def compute(ctx: ReproduceContext) -> dict[str, Any]:
     names, runs = ctx.compared, ctx.runs
     overrides: dict[str, Any] = {"n_steps": 30} if ctx.quick else {}
+    study_runs = min(runs, 2 if ctx.quick else STUDY_RUNS)
     table: dict[str, Any] = {}
+    studies: dict[str, Any] = {}
     for n in VEHICLE_COUNTS:
         config = ctx.config(f"gulati-{n}v", scenario_overrides=overrides)
         result = ctx.run(config)
@@ -74,22 +152,35 @@ def compute(ctx: ReproduceContext) -> dict[str, Any]:
             vehicles = errors.kind == VEHICLE
             per_run, per_step = total_rmse_per_run_and_step(run[vehicles], errors.step[vehicles],
                                                             errors.err_pos[vehicles])
+            counts = np.bincount(run[vehicles], minlength=per_run.size)
+            per_run_sq = np.bincount(run[vehicles], errors.err_pos[vehicles]**2, minlength=per_run.size)
+            per_run_nees = np.bincount(run[vehicles], errors.nees[vehicles], minlength=per_run.size) / counts
             seconds = [r.step_seconds[name] for r in result.runs]
             row[name] = {
                 "total_rmse": float(per_run.mean()),
                 "total_rmse_std_error": float(per_run.std(ddof=1) / np.sqrt(runs)) if runs > 1 else None,
                 "per_run_total_rmse": per_run.tolist(),
                 "vehicle_rmse_all": float(np.sqrt(np.mean(errors.err_pos[vehicles]**2))),
+                "per_run_vehicle_rmse": np.sqrt(per_run_sq / counts).tolist(),
+                "nees": float(np.mean(errors.nees[vehicles])),
+                "per_run_nees": per_run_nees.tolist(),
                 "total_rmse_per_step": per_step.tolist(),
                 "seconds_per_run": float(np.mean(seconds)),
+                "per_run_seconds": [float(x) for x in seconds],
             }
-        if KALMAN in row:
-            for name in names:
-                row[name]["ratio_to_kalman"] = row[name]["total_rmse"] / row[KALMAN]["total_rmse"]
+        for reference, key in ((KALMAN, "ratio_to_kalman"), (BOUND, "ratio_to_bound")):
+            if reference in row:
+                for name in names:
+                    row[name][key] = row[name]["total_rmse"] / row[reference]["total_rmse"]
         table[str(n)] = row
         if n in FIGURES:
             _figures(ctx, config, row, n)
-    return {"scenario_overrides": overrides, "table": table,
+        if {"fg-topology-old", "fg-topology-new"} <= set(names):
+            studies[str(n)] = _study(ctx, config, study_runs)
+    params = get_preset("gulati-2v").params
+    return {"scenario_overrides": overrides, "table": table, "study": studies,
+            "noise": {"odometry_variance": params.odometry_variance, "radar_variance": params.radar_variance,
+                      "gnss_variance": params.gnss_variance},
             "paper_table_i": {str(k): dict(zip(PAPER_COLUMNS, v, strict=True))
                               for k, v in PAPER_TABLE_I.items()},
             "paper_table_ii": {str(k): dict(zip(PAPER_COLUMNS, v, strict=True))
@@ -176,7 +267,7 @@ EXPERIMENT = PaperExperiment(
     paper="004_1b86586d95b593ad.txt",
     compute=compute,
     report=report,
-    compared=("fg-topology-new", "fg-topology-old", "gnss-kf", "fg-isam2"),
+    compared=("fg-topology-new", "fg-topology-old", "gnss-kf", "fg-isam2", BOUND),
     runs=1000,
     figures=(("Fig. 3", "fig3_trajectories_2v.png"), ("Fig. 4", "fig4_rmse_per_step_2v.png"),
              ("Fig. 5", "fig5_trajectories_4v.png"), ("Fig. 6", "fig6_rmse_per_step_4v.png")),
