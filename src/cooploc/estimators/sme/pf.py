@@ -49,11 +49,12 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
 from cooploc.estimators.sme.filter_base import _SmeFilter, _SmeParams
+from cooploc.estimators.sme.proposal import block_diagonal_log_density, linearized_proposal
 from cooploc.estimators.sme.pseudo_measurement import PseudoMeasurement
 from cooploc.params import Params, param
 from cooploc.particles import effective_sample_size, log_sum_exp, marginal_moments, systematic_resample
@@ -80,6 +81,8 @@ class SmePFParams(_SmeParams):
     """
 
     n_particles: int = param(2000, ge=2)
+    proposal: Literal["linearized", "bootstrap"] = "linearized"
+    linearization_iterations: int = param(1, ge=1)
     resample_threshold: float = param(0.5, ge=0, le=1)
     relabel: bool = True
     target_ess: float = param(0.5, gt=0, lt=1)
@@ -239,7 +242,77 @@ class SmePF(_SmeFilter):
         info["stages"] = stages
         info["acceptance"] = float(np.mean(rates)) if rates else None
 
+    def _prior_kernel(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
+        """Each particle's prior N(μ_i, blockdiag Σ₀) at this step, vehicles in and out applied.
+
+        Returns μ (P, N, dx) and the blocks of Σ₀ (N, dx, dx): A x_{k−1}^i and Q for
+        vehicles that continue (eq. 16), the entry belief for vehicles that enter.
+        Sets `ids` to the present vehicles.
+        """
+        present = np.sort(frame.vehicles)
+        keep = np.isin(self.ids, present)
+        born = present[~np.isin(present, self.ids)]
+        mean = [self.particles[:, keep] @ self.F.T]
+        cov = [np.repeat(self.Q[None], int(keep.sum()), axis=0)]
+        ids = [self.ids[keep]]
+        if born.size:
+            predicted = mean[0][:, :, self.pos].mean(0) if keep.any() else np.zeros((0, 2))
+            b_mean, b_cov = self._births(born, frame, predicted)
+            mean.append(np.broadcast_to(b_mean, (self.params.n_particles, *b_mean.shape)))
+            cov.append(b_cov)
+            ids.append(born)
+        ids_all = np.concatenate(ids)
+        order = np.argsort(ids_all)
+        self.ids = ids_all[order]
+        self._perms = None if born.size or not keep.all() else self._perms
+        return np.concatenate(mean, axis=1)[:, order], np.concatenate(cov)[order]
+
+    def _step_linearized(self, frame: Frame) -> Estimate:
+        """One step with the linearized optimal proposal (`proposal`, module `proposal`)."""
+        mu, Sigma0 = self._prior_kernel(frame)
+        info: dict[str, Any] = {"n_particles": self.params.n_particles, "stages": 0}
+        n = self.ids.size
+        if n == 0:
+            self.particles = mu
+            info.update(set_valued=True, skipped=[], ess=float(self.params.n_particles), resampled=False)
+            return Estimate(StateSet.empty(self.dx), None, info)
+        # predicted per-vehicle moments: the spread of the kernels' means plus Σ₀
+        mean, spread = marginal_moments(mu, self.log_w)
+        model, pm_info = self._pseudo_measurement(frame, mean, spread + Sigma0)
+        info.update(pm_info)
+        if model.y_gnss is None and model.y_radar is None:
+            # nothing measured: draw from the prior kernels (the motion model)
+            L = np.linalg.cholesky(Sigma0)
+            self.particles = mu + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(mu.shape))
+        else:
+            proposal = linearized_proposal(mu, Sigma0, self.log_w, model, self.pos,
+                                           self.params.linearization_iterations)
+            # auxiliary particle filter (Pitt & Shephard 1999): pick parents by w_j λ_j ...
+            idx = systematic_resample(self.log_w + proposal.log_predictive, self.rng)[0]
+            white = self.rng.standard_normal((idx.size, proposal.chol.shape[0]))
+            self.particles = proposal.mean[idx] + (white @ proposal.chol.T).reshape(mu.shape)
+            loglik = model.log_likelihood(self.particles[:, :, self.pos])
+            # ... then w ∝ p(y | x) / N(y; H x + c, Λ): p(x | x_j) λ_j / q(x | x_j, y) is
+            # exactly the linearized likelihood, so only the linearization error weighs
+            self.log_w = (np.where(np.isfinite(loglik), loglik, -np.inf)
+                          - proposal.linearized_log_likelihood(self.particles))
+            if not np.isfinite(self.log_w).any():
+                self.log_w = np.zeros_like(self.log_w)
+                info["degenerate"] = True
+            self.log_w -= log_sum_exp(self.log_w, axis=None)
+            info["stages"] = 1
+        self._relabel(mean)
+        ess = self._ess()
+        info["ess"] = ess
+        estimate = self._estimate(info)
+        info["resampled"] = ess < self.params.resample_threshold * self.params.n_particles
+        if info["resampled"]:
+            self._resample()
+        return estimate
+
     def step(self, frame: Frame) -> Estimate:
+        if self.params.proposal == "linearized":
+            return self._step_linearized(frame)
         parents = None  # x_{k−1} of each particle, for the move kernel
         if self.ids.size and self._started:
             parents = self.particles
