@@ -54,7 +54,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 
 from cooploc.estimators.sme.filter_base import _SmeFilter, _SmeParams
-from cooploc.estimators.sme.proposal import block_diagonal_log_density, linearized_proposal
+from cooploc.estimators.sme.proposal import LinearizedProposal, linearized_proposal
 from cooploc.estimators.sme.pseudo_measurement import PseudoMeasurement
 from cooploc.params import Params, param
 from cooploc.particles import effective_sample_size, log_sum_exp, marginal_moments, systematic_resample
@@ -85,6 +85,7 @@ class SmePFParams(_SmeParams):
     linearization_iterations: int = param(1, ge=1)
     resample_threshold: float = param(0.5, ge=0, le=1)
     relabel: bool = True
+    relabel_iterations: int = param(1, ge=1)
     target_ess: float = param(0.5, gt=0, lt=1)
     n_moves: int = param(2, ge=0)
     max_stages: int = param(20, ge=1)
@@ -139,18 +140,27 @@ class SmePF(_SmeFilter):
         self._perms = None
 
     def _relabel(self, reference: FloatArray) -> None:
-        """Permute each particle's vehicle blocks to best match `reference` (N, dx)."""
+        """Permute each particle's vehicle blocks to best match `reference` (N, dx).
+
+        With `relabel_iterations` > 1 the reference becomes the weighted mean of the
+        relabelled cloud and the assignment is repeated (the fixed-point iteration of the
+        MMOSPA estimate, Crouse, Willett et al. 2011) until no particle changes.
+        """
         n = self.ids.size
         if not self.params.relabel or n < 2 or n > _MAX_EXHAUSTIVE:
             return
         if self._perms is None or self._perms.shape[1] != n:
             self._perms = np.array(list(itertools.permutations(range(n))), dtype=np.int64)
-        diff = self.particles[:, None, :, :] - reference[None, :, None, :]     # (P, N_ref, N, dx)
-        cost = (diff**2).sum(-1)                                                 # (P, i, j)
-        total = cost[:, np.arange(n)[None, :], self._perms].sum(-1)              # (P, n!)
-        best = self._perms[np.argmin(total, axis=1)]                             # (P, N)
-        moved = (best != np.arange(n)).any(axis=1)
-        if moved.any():
+        for iteration in range(self.params.relabel_iterations):
+            if iteration:
+                reference = marginal_moments(self.particles, self.log_w)[0]
+            diff = self.particles[:, None, :, :] - reference[None, :, None, :]     # (P, N_ref, N, dx)
+            cost = (diff**2).sum(-1)                                                 # (P, i, j)
+            total = cost[:, np.arange(n)[None, :], self._perms].sum(-1)              # (P, n!)
+            best = self._perms[np.argmin(total, axis=1)]                             # (P, N)
+            moved = (best != np.arange(n)).any(axis=1)
+            if not moved.any():
+                break
             rows = np.flatnonzero(moved)
             self.particles[rows] = np.take_along_axis(self.particles[rows], best[rows][..., None], 1)
 
@@ -268,7 +278,13 @@ class SmePF(_SmeFilter):
         return np.concatenate(mean, axis=1)[:, order], np.concatenate(cov)[order]
 
     def _step_linearized(self, frame: Frame) -> Estimate:
-        """One step with the linearized optimal proposal (`proposal`, module `proposal`)."""
+        """One step with the linearized optimal proposal (module `proposal`).
+
+        Auxiliary particle filter: parents j drawn by w_j λ_j, particles from their
+        linearized posteriors, weights p(y | x) / N(y; H x + c, Λ). When the effective
+        sample size falls below `resample_threshold`, the cloud is resampled and moved by
+        `n_moves` independence Metropolis–Hastings sweeps with the same proposal.
+        """
         mu, Sigma0 = self._prior_kernel(frame)
         info: dict[str, Any] = {"n_particles": self.params.n_particles, "stages": 0}
         n = self.ids.size
@@ -280,6 +296,7 @@ class SmePF(_SmeFilter):
         mean, spread = marginal_moments(mu, self.log_w)
         model, pm_info = self._pseudo_measurement(frame, mean, spread + Sigma0)
         info.update(pm_info)
+        info["resampled"] = False
         if model.y_gnss is None and model.y_radar is None:
             # nothing measured: draw from the prior kernels (the motion model)
             L = np.linalg.cholesky(Sigma0)
@@ -287,28 +304,53 @@ class SmePF(_SmeFilter):
         else:
             proposal = linearized_proposal(mu, Sigma0, self.log_w, model, self.pos,
                                            self.params.linearization_iterations)
-            # auxiliary particle filter (Pitt & Shephard 1999): pick parents by w_j λ_j ...
+            # auxiliary particle filter (Pitt & Shephard 1999): parents by w_j λ_j ...
             idx = systematic_resample(self.log_w + proposal.log_predictive, self.rng)[0]
-            white = self.rng.standard_normal((idx.size, proposal.chol.shape[0]))
-            self.particles = proposal.mean[idx] + (white @ proposal.chol.T).reshape(mu.shape)
-            loglik = model.log_likelihood(self.particles[:, :, self.pos])
+            centres = proposal.mean[idx]
+            self.particles = proposal.draw(centres, self.rng)
             # ... then w ∝ p(y | x) / N(y; H x + c, Λ): p(x | x_j) λ_j / q(x | x_j, y) is
             # exactly the linearized likelihood, so only the linearization error weighs
-            self.log_w = (np.where(np.isfinite(loglik), loglik, -np.inf)
-                          - proposal.linearized_log_likelihood(self.particles))
-            if not np.isfinite(self.log_w).any():
-                self.log_w = np.zeros_like(self.log_w)
+            log_ratio = self._log_ratio(model, proposal, self.particles)
+            if not np.isfinite(log_ratio).any():
+                log_ratio = np.zeros_like(log_ratio)
                 info["degenerate"] = True
-            self.log_w -= log_sum_exp(self.log_w, axis=None)
+            self.log_w = log_ratio - log_sum_exp(log_ratio, axis=None)
             info["stages"] = 1
+            info["ess"] = self._ess()
+            if info["ess"] < self.params.resample_threshold * self.params.n_particles:
+                keep = self._resample()
+                info["resampled"] = True
+                if self.params.n_moves:
+                    info["acceptance"] = self._independence_moves(model, proposal, centres[keep],
+                                                                  log_ratio[keep])
         self._relabel(mean)
-        ess = self._ess()
-        info["ess"] = ess
-        estimate = self._estimate(info)
-        info["resampled"] = ess < self.params.resample_threshold * self.params.n_particles
-        if info["resampled"]:
-            self._resample()
-        return estimate
+        info.setdefault("ess", self._ess())
+        return self._estimate(info)
+
+    def _log_ratio(self, model: PseudoMeasurement, proposal: LinearizedProposal, x: FloatArray
+                   ) -> FloatArray:
+        """log p(y | x) − log N(y; H x + c, Λ): the second-stage weight of particles x (P,)."""
+        loglik = model.log_likelihood(x[:, :, self.pos])
+        return np.where(np.isfinite(loglik), loglik, -np.inf) - proposal.linearized_log_likelihood(x)
+
+    def _independence_moves(self, model: PseudoMeasurement, proposal: LinearizedProposal,
+                            centres: FloatArray, log_ratio: FloatArray) -> float:
+        """`n_moves` independence Metropolis–Hastings sweeps of the resampled particles.
+
+        Target p(x | x_j) p(y | x) for each particle's parent j, proposal N(μ_j^+, Σ^+):
+        the acceptance ratio reduces to the ratio of the second-stage weights. Returns
+        the acceptance rate.
+        """
+        accepted = 0
+        for _ in range(self.params.n_moves):
+            candidate = proposal.draw(centres, self.rng)
+            candidate_ratio = self._log_ratio(model, proposal, candidate)
+            log_alpha = np.nan_to_num(candidate_ratio - log_ratio, nan=-np.inf)
+            accept = np.log(self.rng.random(log_alpha.size)) < log_alpha
+            self.particles[accept] = candidate[accept]
+            log_ratio = np.where(accept, candidate_ratio, log_ratio)
+            accepted += int(accept.sum())
+        return accepted / (self.params.n_moves * log_ratio.size)
 
     def step(self, frame: Frame) -> Estimate:
         if self.params.proposal == "linearized":

@@ -48,11 +48,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from cooploc.estimators.sme.pseudo_measurement import PseudoMeasurement
-from cooploc.gaussian import gaussian_logpdf, sigma_points, statistical_linear_regression, symmetrize
+from cooploc.gaussian import sigma_points, statistical_linear_regression, symmetrize
 from cooploc.particles import log_sum_exp
 from cooploc.types import FloatArray
 
-__all__ = ["LinearizedProposal", "block_diagonal_log_density", "linearized_proposal"]
+__all__ = ["LinearizedProposal", "linearized_proposal"]
 
 
 @dataclass(frozen=True)
@@ -78,24 +78,20 @@ class LinearizedProposal:
     def linearized_log_likelihood(self, x: FloatArray) -> FloatArray:
         """log N(y; H x + c, Λ) for particles x (P, N, dx) → (P,)."""
         r = self.y - self.c - x.reshape(x.shape[0], -1) @ self.H.T
-        return gaussian_logpdf(r, self.Lam)
+        return _shared_logpdf(r, self.Lam)
 
-    def sample(self, rng: np.random.Generator) -> tuple[FloatArray, FloatArray]:
-        """Draws x_i (P, N, dx) and log q(x_i) up to a constant shared by all particles (P,)."""
-        P = self.mean.shape[0]
-        white = rng.standard_normal((P, self.chol.shape[0]))
-        x = self.mean + (white @ self.chol.T).reshape(self.mean.shape)
-        return x, -0.5 * (white**2).sum(-1)
+    def draw(self, centres: FloatArray, rng: np.random.Generator) -> FloatArray:
+        """One draw x ~ N(centre, L Lᵀ) per row of centres (P, N, dx) (proposal means)."""
+        white = rng.standard_normal((centres.shape[0], self.chol.shape[0]))
+        return centres + (white @ self.chol.T).reshape(centres.shape)
 
 
-def block_diagonal_log_density(x: FloatArray, mean: FloatArray, cov_blocks: FloatArray) -> FloatArray:
-    """log N(x; mean, blockdiag(cov_blocks)) up to a constant shared by all particles.
-
-    x, mean : (P, N, dx); cov_blocks : (N, dx, dx) one covariance per vehicle block.
-    """
-    L = np.linalg.cholesky(cov_blocks)                                      # (N, dx, dx)
-    white = np.linalg.solve(L[None], (x - mean)[..., None])[..., 0]         # L⁻¹ (x − μ) per block
-    return -0.5 * (white**2).sum(axis=(-2, -1))
+def _shared_logpdf(residual: FloatArray, cov: FloatArray) -> FloatArray:
+    """log N(r_i; 0, C) for residuals (P, D) sharing one covariance (D, D): one Cholesky."""
+    L = np.linalg.cholesky(cov)
+    white = np.linalg.solve(L, residual.T)                                   # L⁻¹ r_i, (D, P)
+    log_det = 2.0 * np.log(np.diagonal(L)).sum()
+    return -0.5 * (residual.shape[1] * np.log(2.0 * np.pi) + log_det + (white**2).sum(0))
 
 
 def _linearize(model: PseudoMeasurement, mean: FloatArray, cov: FloatArray,
@@ -152,5 +148,5 @@ def linearized_proposal(prior_mean: FloatArray, prior_cov: FloatArray, log_w: Fl
     mean = (mu + innovation @ K.T).reshape(P, N, dx)
     I_KH = np.eye(d) - K @ H
     cov = symmetrize(I_KH @ Sigma0 @ I_KH.T + K @ Lam @ K.T)                # Joseph form
-    log_predictive = gaussian_logpdf(innovation, S)                         # log N(y; H μ_i + c, S)
+    log_predictive = _shared_logpdf(innovation, S)                          # log N(y; H μ_i + c, S)
     return LinearizedProposal(mean, np.linalg.cholesky(cov), log_predictive, y, H, c, Lam)
