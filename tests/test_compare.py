@@ -116,19 +116,22 @@ def test_a_scenario_where_nothing_runs_is_still_a_table(tmp_path):
 def test_presets_declare_their_bound():
     bounds = {name: p.bound for name, p in presets().items()}
     assert bounds["froehle2018"] == bounds["brambilla-road"] == bounds["brambilla-crossroad"] == "oracle-kf"
-    assert {bounds[f"zhang2016-{v}"] for v in ("cv", "ct2", "ct4")} == {"kf-known-da"}
+    assert {bounds[f"zhang2016-{v}"] for v in ("cv", "ct2", "ct4")} == {"oracle-pose"}
+    assert {bounds[f"gulati-{n}v"] for n in (2, 3, 4)} == {"oracle-pose-smoother"}
     assert all(b == "oracle-kf" for n, b in bounds.items() if n.startswith("sumo-"))
-    assert all(bounds[n] is None for n in ("gulati-2v", "gulati-3v", "gulati-4v", "aoa-grid",
-                                           "aoa-grid-tracking"))
+    assert all(bounds[n] is None for n in ("aoa-grid", "aoa-grid-tracking"))
     assert all(b is None or b in estimators() for b in bounds.values())
-    for name in ("froehle2018", "brambilla-road", "brambilla-crossroad", "zhang2016-cv"):  # it runs there
-        preset = get_preset(name)
+    for name in ("froehle2018", "brambilla-road", "brambilla-crossroad", "zhang2016-cv", "gulati-2v"):
+        preset = get_preset(name)  # it runs there
         recording = preset.generate(np.random.default_rng(0), preset.params.with_overrides({"n_steps": 3}))
         rng = np.random.default_rng(1)
         construct(get_estimator(preset.bound), recording.setup, None, rng, recording.truth)
-    # gulati has none: oracle-kf would leave its odometry and radar aside, so it bounds nothing
-    gulati = get_preset("gulati-2v")
-    recording = gulati.generate(np.random.default_rng(0), gulati.params.with_overrides({"n_steps": 3}))
+    # the radar-pose bounds use every sensor of their scenarios; oracle-kf would leave the
+    # odometry and radar aside, so it bounds nothing there
+    for name in ("zhang2016-cv", "gulati-2v"):
+        preset = get_preset(name)
+        recording = preset.generate(np.random.default_rng(0), preset.params.with_overrides({"n_steps": 3}))
+        assert unused_kinds(get_estimator(preset.bound), recording.setup) == ()
     assert unused_kinds(get_estimator("oracle-kf"), recording.setup) == ("odometry", "radar")
 
 

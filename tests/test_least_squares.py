@@ -21,6 +21,7 @@ from cooploc.least_squares import (
     marginal_covariances,
     selected_inverse,
     solve_lm,
+    solve_lm_bordered,
     whitener,
 )
 
@@ -208,3 +209,41 @@ def test_whitener_gives_unit_covariance(rng: np.random.Generator) -> None:
     np.testing.assert_allclose(W @ cov @ W.transpose(0, 2, 1), np.broadcast_to(np.eye(3), cov.shape),
                                atol=1e-10)
     assert whitener(np.zeros((0, 2, 2))).shape == (0, 2, 2)
+
+
+def test_bordered_lm_is_the_dense_solution_with_a_global_offset(rng: np.random.Generator) -> None:
+    """The chain seen by a sensor with an unknown offset b (2,): rows x_i + b − y_i on every
+    variable (an arrow normal matrix). SciPy on the dense problem gives the minimum, the
+    dense inverse of JᵀJ the marginals."""
+    chain = Chain(rng)
+    n = chain.n
+    y = chain.x0 + np.array([3.0, -2.0]) + rng.normal(0, 0.3, (n, 2))
+    sigma_y = 0.3
+
+    def residual(v: np.ndarray) -> np.ndarray:
+        x, b = v[:2 * n].reshape(n, 2), v[2 * n:]
+        return np.concatenate([chain.residual(x), ((x + b - y) / sigma_y).ravel()])
+
+    def jacobian(v: np.ndarray) -> sp.csr_matrix:
+        x = v[:2 * n].reshape(n, 2)
+        J_y = sp.hstack([sp.identity(2 * n), sp.csr_matrix(np.tile(np.eye(2), (n, 1)))]) / sigma_y
+        J_chain = sp.hstack([chain.jacobian(x), sp.csr_matrix((chain.residual(x).size, 2))])
+        return sp.vstack([J_chain, J_y]).tocsr()
+
+    def linearize(x: np.ndarray, b: np.ndarray, jac: bool = True):
+        v = np.concatenate([x.ravel(), b])
+        return residual(v), (jacobian(v) if jac else None)
+
+    ours = solve_lm_bordered(linearize, chain.x0, np.zeros(2), **TIGHT)
+    ref = scipy_least_squares(residual, np.concatenate([chain.x0.ravel(), np.zeros(2)]),
+                              jac=lambda v: jacobian(v).toarray(), method="trf",
+                              xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=1000)
+    assert ref.success
+    np.testing.assert_allclose(np.concatenate([ours.x.ravel(), ours.border]), ref.x, atol=X_ATOL_M)
+    J = jacobian(ref.x).toarray()
+    Sigma = np.linalg.inv(J.T @ J)
+    blocks = np.array([Sigma[2 * i:2 * i + 2, 2 * i:2 * i + 2] for i in range(n)])
+    # zero cross terms differ by round-off: absolute tolerance at 1e-9 of the variances
+    np.testing.assert_allclose(ours.cov, blocks, rtol=INVERSE_RTOL, atol=1e-9 * blocks.max())
+    np.testing.assert_allclose(ours.border_cov, Sigma[2 * n:, 2 * n:], rtol=INVERSE_RTOL,
+                               atol=1e-9 * Sigma.max())

@@ -15,7 +15,7 @@ import pytest
 from scipy.stats import multivariate_normal
 
 from cooploc.errors import InvalidInputError
-from cooploc.geometry import rotation, to_local
+from cooploc.geometry import fit_pose, rotation, to_local
 from cooploc.sensors import (
     AnonymousPosition,
     GnssPosition,
@@ -398,3 +398,11 @@ def test_sensor_from_dict_round_trip(sensor, rng: np.random.Generator) -> None:
 def test_sensor_from_dict_unknown_model() -> None:
     with pytest.raises(InvalidInputError, match="unknown"):
         sensor_from_dict({"model": "lidar"})
+
+
+def test_fit_pose_inverts_to_local(rng: np.random.Generator) -> None:
+    pose = np.array([*rng.uniform(-100, 100, 2), rng.uniform(-np.pi, np.pi)])
+    world = rng.normal(0, 30, (5, 2))
+    fitted = fit_pose(world, to_local(pose, world))
+    np.testing.assert_allclose(fitted[:2], pose[:2], atol=1e-9)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (fitted[2] - pose[2]))), 0.0, atol=1e-12)

@@ -5,6 +5,8 @@
 - `rotation`: R(θ) = [[cos θ, −sin θ], [sin θ, cos θ]], which turns vectors of a frame
   rotated by θ into the global frame (batched over leading dimensions).
 - `to_local`: global points seen from a sensor at pose [x, y, θ]: R(θ)ᵀ (p − t).
+- `fit_pose`: the pose [x, y, θ] that best maps matched sensor-frame points onto
+  global ones (least-squares rigid registration in closed form, no scale).
 - `links_within`: the pairs of points within a distance of each other (V2V links
   within the communication range), from a k-d tree in O(n log n + E) for n points and
   E pairs — never an n × n distance matrix, so a frame of thousands of vehicles costs
@@ -20,7 +22,7 @@ import numpy.typing as npt
 
 from cooploc.types import FloatArray, IntArray
 
-__all__ = ["close_pairs", "links_within", "rotation", "to_local", "wrap_angle"]
+__all__ = ["close_pairs", "fit_pose", "links_within", "rotation", "to_local", "wrap_angle"]
 
 
 def wrap_angle(angle: npt.ArrayLike) -> FloatArray:
@@ -39,6 +41,19 @@ def to_local(pose: npt.ArrayLike, points: FloatArray) -> FloatArray:
     """Points (n, 2) in the global frame seen from a sensor at pose [x, y, yaw]: R(θ)ᵀ (p − t)."""
     pose = np.asarray(pose, dtype=float)
     return (np.asarray(points, dtype=float) - pose[:2]) @ rotation(pose[2])
+
+
+def fit_pose(world: FloatArray, local: FloatArray) -> FloatArray:
+    """The pose [x, y, θ] minimising Σ_i ‖t + R(θ) l_i − w_i‖² over matched points (n, 2).
+
+    Closed form (2-D Procrustes without scale): with centred points, θ = atan2(Σ l × w,
+    Σ l · w) and t = w̄ − R(θ) l̄. Needs n ≥ 2 distinct points for θ to be determined.
+    """
+    world, local = np.asarray(world, dtype=float), np.asarray(local, dtype=float)
+    w, l = world - world.mean(axis=0), local - local.mean(axis=0)
+    theta = np.arctan2(np.sum(l[:, 0] * w[:, 1] - l[:, 1] * w[:, 0]), np.sum(l * w))
+    t = world.mean(axis=0) - rotation(theta) @ local.mean(axis=0)
+    return np.array([t[0], t[1], theta])
 
 
 # a k-d tree's distance test and np.hypot may disagree in the last bits; candidates are

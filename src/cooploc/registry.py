@@ -82,6 +82,7 @@ BUILTIN_ESTIMATORS = (
     "cooploc.estimators.rsu_bp",
     "cooploc.estimators.icp",
     "cooploc.estimators.kf_known_da",
+    "cooploc.estimators.oracle_pose",
     "cooploc.estimators.sme",
     "cooploc.estimators.gm_phd",
     "cooploc.estimators.factor_graph",

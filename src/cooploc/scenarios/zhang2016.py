@@ -207,9 +207,9 @@ _DOC = ("Reproduces Figs. 2–3 of Zhang et al. (GeoInformatica 2016): five vehi
 PRESETS = register_scenario("zhang2016", generate, [
     Preset("zhang2016-cv", ZhangParams(),
            "Zhang 2016 §4.1 CV: 5 vehicles, anonymous GPS + radar of unknown pose", _DOC,
-           bound="kf-known-da"),
+           bound="oracle-pose"),
     Preset("zhang2016-ct2", ZhangParams(turn_rates=(_OMEGA, 0.0, 0.0, 0.0, -_OMEGA)),
-           "Zhang 2016 §4.1 CT-2: vehicles 1 and 5 turn at ±0.05 rad/s", _DOC, bound="kf-known-da"),
+           "Zhang 2016 §4.1 CT-2: vehicles 1 and 5 turn at ±0.05 rad/s", _DOC, bound="oracle-pose"),
     Preset("zhang2016-ct4", ZhangParams(turn_rates=(_OMEGA, -_OMEGA, 0.0, _OMEGA, -_OMEGA)),
-           "Zhang 2016 §4.1 CT-4: vehicles 1, 2, 4, 5 turn at ±0.05 rad/s", _DOC, bound="kf-known-da"),
+           "Zhang 2016 §4.1 CT-4: vehicles 1, 2, 4, 5 turn at ±0.05 rad/s", _DOC, bound="oracle-pose"),
 ])
