@@ -58,12 +58,22 @@ class TopologyGain:
 
     Attributes
     ----------
-    kf : expected total error (eq. 20, m) of the known-association KF, GPS only.
-    kf_topology : the same filter with the T row.
+    kf_per_step : (K,) E Σ_i ‖p̂_i − p_i‖² (m²) of the known-association KF, GPS only.
+    kf_topology_per_step : (K,) the same for the filter with the T row.
     """
 
-    kf: float
-    kf_topology: float
+    kf_per_step: FloatArray
+    kf_topology_per_step: FloatArray
+
+    @property
+    def kf(self) -> float:
+        """Expected total error (eq. 20, m) of the known-association KF, GPS only."""
+        return float(np.sqrt(self.kf_per_step.mean()))
+
+    @property
+    def kf_topology(self) -> float:
+        """Expected total error (eq. 20, m) of the known-association KF with the T row."""
+        return float(np.sqrt(self.kf_topology_per_step.mean()))
 
     @property
     def ratio(self) -> float:
@@ -134,5 +144,4 @@ def expected_squared_error(recording: Recording, use_topology: bool) -> FloatArr
 
 def topology_gain(recording: Recording) -> TopologyGain:
     """Expected eq. (20) total errors of the known-association KF without and with T."""
-    return TopologyGain(float(np.sqrt(expected_squared_error(recording, False).mean())),
-                        float(np.sqrt(expected_squared_error(recording, True).mean())))
+    return TopologyGain(expected_squared_error(recording, False), expected_squared_error(recording, True))
