@@ -302,8 +302,13 @@ class SmePF(_SmeFilter):
             L = np.linalg.cholesky(Sigma0)
             self.particles = mu + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(mu.shape))
         else:
-            proposal = linearized_proposal(mu, Sigma0, self.log_w, model, self.pos,
-                                           self.params.linearization_iterations)
+            try:
+                proposal = linearized_proposal(mu, Sigma0, self.log_w, model, self.pos,
+                                               self.params.linearization_iterations)
+            except np.linalg.LinAlgError:
+                # the linearization lost positive definiteness (vehicles on top of each other,
+                # float64): this step draws from the motion model and weighs by p(y | x)
+                return self._fallback_step(mu, Sigma0, mean, model, info)
             # auxiliary particle filter (Pitt & Shephard 1999): parents by w_j λ_j ...
             idx = systematic_resample(self.log_w + proposal.log_predictive, self.rng)[0]
             centres = proposal.mean[idx]
@@ -325,6 +330,24 @@ class SmePF(_SmeFilter):
                                                                   log_ratio[keep])
         self._relabel(mean)
         info.setdefault("ess", self._ess())
+        return self._estimate(info)
+
+    def _fallback_step(self, mu: FloatArray, Sigma0: FloatArray, reference: FloatArray,
+                       model: PseudoMeasurement, info: dict[str, Any]) -> Estimate:
+        """A bootstrap step (draw from the prior kernels, weigh by the pseudo-likelihood)."""
+        L = np.linalg.cholesky(Sigma0)
+        self.particles = mu + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(mu.shape))
+        loglik = model.log_likelihood(self.particles[:, :, self.pos])
+        self.log_w = self.log_w + np.where(np.isfinite(loglik), loglik, -np.inf)
+        if not np.isfinite(self.log_w).any():
+            self.log_w = np.zeros_like(self.log_w)
+            info["degenerate"] = True
+        self.log_w -= log_sum_exp(self.log_w, axis=None)
+        info.update(stages=1, proposal_fallback=True, ess=self._ess())
+        if info["ess"] < self.params.resample_threshold * self.params.n_particles:
+            self._resample()
+            info["resampled"] = True
+        self._relabel(reference)
         return self._estimate(info)
 
     def _log_ratio(self, model: PseudoMeasurement, proposal: LinearizedProposal, x: FloatArray

@@ -63,8 +63,8 @@ class LinearizedProposal:
     chol : (d, d) lower Cholesky factor L of the shared proposal covariance Σ^+ (d = N dx).
     log_predictive : (P,) log N(y; H μ_i + c, S), each parent's predictive likelihood
         under the linearized model (the auxiliary particle filter's first-stage weight).
-    y, H, c, Lam : the measured pseudo-measurement (D,) and the linearized model
-        y ≈ H x + c + e, e ~ N(0, Λ): H (D, d), c (D,), Λ (D, D).
+    y, H, c, Lam_chol : the measured pseudo-measurement (D,) and the linearized model
+        y ≈ H x + c + e, e ~ N(0, Λ): H (D, d), c (D,), the lower Cholesky factor of Λ (D, D).
     """
 
     mean: FloatArray
@@ -73,12 +73,12 @@ class LinearizedProposal:
     y: FloatArray
     H: FloatArray
     c: FloatArray
-    Lam: FloatArray
+    Lam_chol: FloatArray
 
     def linearized_log_likelihood(self, x: FloatArray) -> FloatArray:
         """log N(y; H x + c, Λ) for particles x (P, N, dx) → (P,)."""
         r = self.y - self.c - x.reshape(x.shape[0], -1) @ self.H.T
-        return _shared_logpdf(r, self.Lam)
+        return _shared_logpdf(r, self.Lam_chol)
 
     def draw(self, centres: FloatArray, rng: np.random.Generator) -> FloatArray:
         """One draw x ~ N(centre, L Lᵀ) per row of centres (P, N, dx) (proposal means)."""
@@ -86,9 +86,8 @@ class LinearizedProposal:
         return centres + (white @ self.chol.T).reshape(centres.shape)
 
 
-def _shared_logpdf(residual: FloatArray, cov: FloatArray) -> FloatArray:
-    """log N(r_i; 0, C) for residuals (P, D) sharing one covariance (D, D): one Cholesky."""
-    L = np.linalg.cholesky(cov)
+def _shared_logpdf(residual: FloatArray, L: FloatArray) -> FloatArray:
+    """log N(r_i; 0, L Lᵀ) for residuals (P, D) sharing one covariance, given its lower factor L."""
     white = np.linalg.solve(L, residual.T)                                   # L⁻¹ r_i, (D, P)
     log_det = 2.0 * np.log(np.diagonal(L)).sum()
     return -0.5 * (residual.shape[1] * np.log(2.0 * np.pi) + log_det + (white**2).sum(0))
@@ -148,5 +147,5 @@ def linearized_proposal(prior_mean: FloatArray, prior_cov: FloatArray, log_w: Fl
     mean = (mu + innovation @ K.T).reshape(P, N, dx)
     I_KH = np.eye(d) - K @ H
     cov = symmetrize(I_KH @ Sigma0 @ I_KH.T + K @ Lam @ K.T)                # Joseph form
-    log_predictive = _shared_logpdf(innovation, S)                          # log N(y; H μ_i + c, S)
-    return LinearizedProposal(mean, np.linalg.cholesky(cov), log_predictive, y, H, c, Lam)
+    log_predictive = _shared_logpdf(innovation, np.linalg.cholesky(S))                        # log N(y; H μ_i + c, S)
+    return LinearizedProposal(mean, np.linalg.cholesky(cov), log_predictive, y, H, c, np.linalg.cholesky(Lam))
