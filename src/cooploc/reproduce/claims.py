@@ -108,9 +108,10 @@ class Claim:
                 **asdict(self.verdict)}
 
 
-def claims_table(claims: Sequence[Claim]) -> list[str]:
-    """The Markdown table of a report: statement, paper, ours, test, verdict."""
-    lines = ["| statement of the paper | paper | ours | test | verdict |", "|---|---|---|---|---|"]
+def claims_table(claims: Sequence[Claim], first_column: str = "statement of the paper") -> list[str]:
+    """The Markdown table of a report: statement, paper, ours, test, verdict (`first_column`
+    names the statements, e.g. for checks of a report's own analysis)."""
+    lines = [f"| {first_column} | paper | ours | test | verdict |", "|---|---|---|---|---|"]
     for c in claims:
         verdict = f"**{c.outcome}**" if c.outcome == REPRODUCED else c.outcome
         lines.append(f"| {_cell(c.statement)} | {_cell(c.paper)} | {_cell(c.quantity)}: "

@@ -49,11 +49,12 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
 from cooploc.estimators.sme.filter_base import _SmeFilter, _SmeParams
+from cooploc.estimators.sme.proposal import LinearizedProposal, linearized_proposal
 from cooploc.estimators.sme.pseudo_measurement import PseudoMeasurement
 from cooploc.params import Params, param
 from cooploc.particles import effective_sample_size, log_sum_exp, marginal_moments, systematic_resample
@@ -80,8 +81,11 @@ class SmePFParams(_SmeParams):
     """
 
     n_particles: int = param(2000, ge=2)
+    proposal: Literal["linearized", "bootstrap"] = "linearized"
+    linearization_iterations: int = param(1, ge=1)
     resample_threshold: float = param(0.5, ge=0, le=1)
     relabel: bool = True
+    relabel_iterations: int = param(1, ge=1)
     target_ess: float = param(0.5, gt=0, lt=1)
     n_moves: int = param(2, ge=0)
     max_stages: int = param(20, ge=1)
@@ -136,18 +140,27 @@ class SmePF(_SmeFilter):
         self._perms = None
 
     def _relabel(self, reference: FloatArray) -> None:
-        """Permute each particle's vehicle blocks to best match `reference` (N, dx)."""
+        """Permute each particle's vehicle blocks to best match `reference` (N, dx).
+
+        With `relabel_iterations` > 1 the reference becomes the weighted mean of the
+        relabelled cloud and the assignment is repeated (the fixed-point iteration of the
+        MMOSPA estimate, Crouse, Willett et al. 2011) until no particle changes.
+        """
         n = self.ids.size
         if not self.params.relabel or n < 2 or n > _MAX_EXHAUSTIVE:
             return
         if self._perms is None or self._perms.shape[1] != n:
             self._perms = np.array(list(itertools.permutations(range(n))), dtype=np.int64)
-        diff = self.particles[:, None, :, :] - reference[None, :, None, :]     # (P, N_ref, N, dx)
-        cost = (diff**2).sum(-1)                                                 # (P, i, j)
-        total = cost[:, np.arange(n)[None, :], self._perms].sum(-1)              # (P, n!)
-        best = self._perms[np.argmin(total, axis=1)]                             # (P, N)
-        moved = (best != np.arange(n)).any(axis=1)
-        if moved.any():
+        for iteration in range(self.params.relabel_iterations):
+            if iteration:
+                reference = marginal_moments(self.particles, self.log_w)[0]
+            diff = self.particles[:, None, :, :] - reference[None, :, None, :]     # (P, N_ref, N, dx)
+            cost = (diff**2).sum(-1)                                                 # (P, i, j)
+            total = cost[:, np.arange(n)[None, :], self._perms].sum(-1)              # (P, n!)
+            best = self._perms[np.argmin(total, axis=1)]                             # (P, N)
+            moved = (best != np.arange(n)).any(axis=1)
+            if not moved.any():
+                break
             rows = np.flatnonzero(moved)
             self.particles[rows] = np.take_along_axis(self.particles[rows], best[rows][..., None], 1)
 
@@ -239,7 +252,132 @@ class SmePF(_SmeFilter):
         info["stages"] = stages
         info["acceptance"] = float(np.mean(rates)) if rates else None
 
+    def _prior_kernel(self, frame: Frame) -> tuple[FloatArray, FloatArray]:
+        """Each particle's prior N(μ_i, blockdiag Σ₀) at this step, vehicles in and out applied.
+
+        Returns μ (P, N, dx) and the blocks of Σ₀ (N, dx, dx): A x_{k−1}^i and Q for
+        vehicles that continue (eq. 16), the entry belief for vehicles that enter.
+        Sets `ids` to the present vehicles.
+        """
+        present = np.sort(frame.vehicles)
+        keep = np.isin(self.ids, present)
+        born = present[~np.isin(present, self.ids)]
+        mean = [self.particles[:, keep] @ self.F.T]
+        cov = [np.repeat(self.Q[None], int(keep.sum()), axis=0)]
+        ids = [self.ids[keep]]
+        if born.size:
+            predicted = mean[0][:, :, self.pos].mean(0) if keep.any() else np.zeros((0, 2))
+            b_mean, b_cov = self._births(born, frame, predicted)
+            mean.append(np.broadcast_to(b_mean, (self.params.n_particles, *b_mean.shape)))
+            cov.append(b_cov)
+            ids.append(born)
+        ids_all = np.concatenate(ids)
+        order = np.argsort(ids_all)
+        self.ids = ids_all[order]
+        self._perms = None if born.size or not keep.all() else self._perms
+        return np.concatenate(mean, axis=1)[:, order], np.concatenate(cov)[order]
+
+    def _step_linearized(self, frame: Frame) -> Estimate:
+        """One step with the linearized optimal proposal (module `proposal`).
+
+        Auxiliary particle filter: parents j drawn by w_j λ_j, particles from their
+        linearized posteriors, weights p(y | x) / N(y; H x + c, Λ). When the effective
+        sample size falls below `resample_threshold`, the cloud is resampled and moved by
+        `n_moves` independence Metropolis–Hastings sweeps with the same proposal.
+        """
+        mu, Sigma0 = self._prior_kernel(frame)
+        info: dict[str, Any] = {"n_particles": self.params.n_particles, "stages": 0}
+        n = self.ids.size
+        if n == 0:
+            self.particles = mu
+            info.update(set_valued=True, skipped=[], ess=float(self.params.n_particles), resampled=False)
+            return Estimate(StateSet.empty(self.dx), None, info)
+        # predicted per-vehicle moments: the spread of the kernels' means plus Σ₀
+        mean, spread = marginal_moments(mu, self.log_w)
+        model, pm_info = self._pseudo_measurement(frame, mean, spread + Sigma0)
+        info.update(pm_info)
+        info["resampled"] = False
+        if model.y_gnss is None and model.y_radar is None:
+            # nothing measured: draw from the prior kernels (the motion model)
+            L = np.linalg.cholesky(Sigma0)
+            self.particles = mu + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(mu.shape))
+        else:
+            try:
+                proposal = linearized_proposal(mu, Sigma0, self.log_w, model, self.pos,
+                                               self.params.linearization_iterations)
+            except np.linalg.LinAlgError:
+                # the linearization lost positive definiteness (vehicles on top of each other,
+                # float64): this step draws from the motion model and weighs by p(y | x)
+                return self._fallback_step(mu, Sigma0, mean, model, info)
+            # auxiliary particle filter (Pitt & Shephard 1999): parents by w_j λ_j ...
+            idx = systematic_resample(self.log_w + proposal.log_predictive, self.rng)[0]
+            centres = proposal.mean[idx]
+            self.particles = proposal.draw(centres, self.rng)
+            # ... then w ∝ p(y | x) / N(y; H x + c, Λ): p(x | x_j) λ_j / q(x | x_j, y) is
+            # exactly the linearized likelihood, so only the linearization error weighs
+            log_ratio = self._log_ratio(model, proposal, self.particles)
+            if not np.isfinite(log_ratio).any():
+                log_ratio = np.zeros_like(log_ratio)
+                info["degenerate"] = True
+            self.log_w = log_ratio - log_sum_exp(log_ratio, axis=None)
+            info["stages"] = 1
+            info["ess"] = self._ess()
+            if info["ess"] < self.params.resample_threshold * self.params.n_particles:
+                keep = self._resample()
+                info["resampled"] = True
+                if self.params.n_moves:
+                    info["acceptance"] = self._independence_moves(model, proposal, centres[keep],
+                                                                  log_ratio[keep])
+        self._relabel(mean)
+        info.setdefault("ess", self._ess())
+        return self._estimate(info)
+
+    def _fallback_step(self, mu: FloatArray, Sigma0: FloatArray, reference: FloatArray,
+                       model: PseudoMeasurement, info: dict[str, Any]) -> Estimate:
+        """A bootstrap step (draw from the prior kernels, weigh by the pseudo-likelihood)."""
+        L = np.linalg.cholesky(Sigma0)
+        self.particles = mu + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(mu.shape))
+        loglik = model.log_likelihood(self.particles[:, :, self.pos])
+        self.log_w = self.log_w + np.where(np.isfinite(loglik), loglik, -np.inf)
+        if not np.isfinite(self.log_w).any():
+            self.log_w = np.zeros_like(self.log_w)
+            info["degenerate"] = True
+        self.log_w -= log_sum_exp(self.log_w, axis=None)
+        info.update(stages=1, proposal_fallback=True, ess=self._ess())
+        if info["ess"] < self.params.resample_threshold * self.params.n_particles:
+            self._resample()
+            info["resampled"] = True
+        self._relabel(reference)
+        return self._estimate(info)
+
+    def _log_ratio(self, model: PseudoMeasurement, proposal: LinearizedProposal, x: FloatArray
+                   ) -> FloatArray:
+        """log p(y | x) − log N(y; H x + c, Λ): the second-stage weight of particles x (P,)."""
+        loglik = model.log_likelihood(x[:, :, self.pos])
+        return np.where(np.isfinite(loglik), loglik, -np.inf) - proposal.linearized_log_likelihood(x)
+
+    def _independence_moves(self, model: PseudoMeasurement, proposal: LinearizedProposal,
+                            centres: FloatArray, log_ratio: FloatArray) -> float:
+        """`n_moves` independence Metropolis–Hastings sweeps of the resampled particles.
+
+        Target p(x | x_j) p(y | x) for each particle's parent j, proposal N(μ_j^+, Σ^+):
+        the acceptance ratio reduces to the ratio of the second-stage weights. Returns
+        the acceptance rate.
+        """
+        accepted = 0
+        for _ in range(self.params.n_moves):
+            candidate = proposal.draw(centres, self.rng)
+            candidate_ratio = self._log_ratio(model, proposal, candidate)
+            log_alpha = np.nan_to_num(candidate_ratio - log_ratio, nan=-np.inf)
+            accept = np.log(self.rng.random(log_alpha.size)) < log_alpha
+            self.particles[accept] = candidate[accept]
+            log_ratio = np.where(accept, candidate_ratio, log_ratio)
+            accepted += int(accept.sum())
+        return accepted / (self.params.n_moves * log_ratio.size)
+
     def step(self, frame: Frame) -> Estimate:
+        if self.params.proposal == "linearized":
+            return self._step_linearized(frame)
         parents = None  # x_{k−1} of each particle, for the move kernel
         if self.ids.size and self._started:
             parents = self.particles
