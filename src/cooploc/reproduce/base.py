@@ -37,6 +37,7 @@ from cooploc.experiment import (
     ExperimentConfig,
     ExperimentResult,
     estimate,
+    run_configs,
     run_experiment,
     run_generators,
     run_recording,
@@ -141,6 +142,15 @@ class ReproduceContext:
         for _, result in points:
             result.raise_failure()
         return points
+
+    def run_all(self, configs: Sequence[ExperimentConfig], label: str = "runs") -> list[ExperimentResult]:
+        """Every run of several configs as one pool of tasks (`experiment.run_configs`: the
+        workers stay busy across configs; put the longest first); a failed estimator-run
+        stops here, as in `run`."""
+        results = run_configs(configs, progress=self.options.progress, label=label)
+        for result in results:
+            result.raise_failure()
+        return results
 
     def map(self, fn: Callable[[Any], Any], tasks: Sequence[Any], label: str) -> list[Any]:
         """`fn` over `tasks`, results in task order: worker processes unless the backend is
