@@ -105,4 +105,5 @@ def exp_inplace(x: np.ndarray) -> None:
         v = np.float32(y * s)
         v = _MIN_SUBNORMAL if xf < _SUBNORMAL else v
         v = np.float32(0.0) if xf < _UNDERFLOW else v
-        x[l] = np.float32(np.inf) if xf > _OVERFLOW else v
+        v = np.float32(np.inf) if xf > _OVERFLOW else v
+        x[l] = xf if xf != xf else v                # NaN stays NaN
