@@ -3,7 +3,9 @@
 For every block b and particle pair (j, l) with whitened u = L⁻¹(z − a) and
 v = L⁻¹ c, the exponent of N(z_b; a_{b,j} − c_{b,l}, W_b) is −½‖u_bj + v_bl‖²:
 
-- `kernel_matrix` stores exp(−½ (q_bjl − min_l q_bjl)) in float32 with the row shift;
+- `kernel_matrix` stores exp(−½ (q_bjl − min_l q_bjl)) in float32 with the row shift
+  (the exponentials by `cooploc._expf.exp_inplace`: vectorized, and bit for bit the
+  C library's `expf` that ``np.exp`` calls here one element at a time);
 - `kernel_sum` returns log Σ_l w_bl exp(log_norm_b − ½ q_bjl) in float64 without
   storing the pairs.
 
@@ -15,6 +17,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from cooploc._expf import exp_inplace
 from cooploc.types import FloatArray
 
 __all__ = ["kernel_matrix", "kernel_sum"]
@@ -49,7 +52,8 @@ def kernel_matrix(u: np.ndarray, vt: np.ndarray, out: np.ndarray, shift: FloatAr
             q_min = min(q_min, row[l])
         shift[b, j] = -0.5 * q_min
         for l in range(Nl):
-            row[l] = np.exp(-half * (row[l] - q_min))
+            row[l] = -half * (row[l] - q_min)
+        exp_inplace(row)
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)

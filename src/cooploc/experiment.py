@@ -80,6 +80,7 @@ __all__ = [
     "execute",
     "iter_runs",
     "iter_tasks",
+    "run_configs",
     "run_experiment",
     "run_generators",
     "run_one",
@@ -493,13 +494,24 @@ def run_sweep(
                 raise ConfigError(f"sweep target {target!r} is not among the estimators")
             cfg = dataclasses.replace(config, estimators=tuple(specs))
         configs.append(cfg)
+    return list(zip(values, run_configs(configs, progress, f"sweep {key}"), strict=True))
+
+
+def run_configs(configs: Sequence[ExperimentConfig], progress: bool = False, label: str = "runs"
+                ) -> list[ExperimentResult]:
+    """Every run of every config, scheduled together on the first config's backend (the
+    workers stay busy from one config to the next; put the longest first), results in
+    config order."""
+    if not configs:
+        return []
+    first = configs[0]
     tasks = _Tasks(configs)
-    bar = _Progress(len(tasks), f"sweep {key}", progress)
+    bar = _Progress(len(tasks), label, progress)
     with bar as tick:
-        results = execute(tasks, config.backend, config.workers, tick, scheduler=config.scheduler,
+        results = execute(tasks, first.backend, first.workers, tick, scheduler=first.scheduler,
                           announce=bar.note)
     out, i = [], 0
-    for value, cfg in zip(values, configs, strict=True):
-        out.append((value, ExperimentResult(cfg, tuple(results[i:i + cfg.runs]))))
+    for cfg in configs:
+        out.append(ExperimentResult(cfg, tuple(results[i:i + cfg.runs])))
         i += cfg.runs
     return out

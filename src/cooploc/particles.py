@@ -351,7 +351,8 @@ class PairKernel:
             return top + np.log(s.astype(float))
 
 
-def pair_kernel(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray) -> PairKernel:
+def pair_kernel(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray,
+                buffer: npt.NDArray[np.float32] | None = None) -> PairKernel:
     """G[b, j, l] = N(z_b; a_{b,j} − c_{b,l}, cov_b) for all pairs, as a `PairKernel`.
 
     Parameters
@@ -359,9 +360,18 @@ def pair_kernel(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray) ->
     z : (B, d) measurements; cov : (B, d, d) their noise covariances (SPD).
     a : (B, N_j, d) first particle set mapped to measurement space (e.g. H f_j).
     c : (B, N_l, d) second particle set mapped to measurement space (e.g. H x_l).
+    buffer : optional 1-D float32 array of at least B N_j N_l elements that the values
+        are written to (the kernel's `values` is a view of it): a filter that builds a
+        kernel every step reuses one buffer instead of asking the system for fresh
+        zeroed pages of this size each time.
     """
     u, vt, log_norm = _whiten(z, cov, a, c)
-    values = np.empty((u.shape[0], u.shape[1], vt.shape[2]), dtype=np.float32)
+    shape = (u.shape[0], u.shape[1], vt.shape[2])
+    size = shape[0] * shape[1] * shape[2]
+    if buffer is not None and buffer.dtype == np.float32 and buffer.ndim == 1 and buffer.size >= size:
+        values = buffer[:size].reshape(shape)
+    else:
+        values = np.empty(shape, dtype=np.float32)
     shift = np.zeros(u.shape[:2])
     if values.size:
         from cooploc._particle_kernels import kernel_matrix

@@ -49,6 +49,17 @@ __all__ = [
 
 MAX_PANELS = 6  # more vehicles than this: `shown_ids` picks them, the pooled RMSE is in the report
 BOUND_ESTIMATORS = ("oracle-kf", "icp", "kf-known-da", "oracle-pose", "oracle-pose-smoother")
+#: scenario families whose papers measure Zhang 2016's total error (eq. (20)) and OSPA: the
+#: run report shows them only there (summary.json has them for every scenario)
+TOTAL_ERROR_FAMILIES = ("zhang2016",)
+
+
+def _family(scenario: str) -> str | None:
+    """The registered family of preset `scenario` (None for an unknown name)."""
+    from cooploc.registry import presets
+
+    preset = presets().get(scenario)
+    return preset.family if preset is not None else None
 
 
 def shown_ids(ids: Sequence[Any]) -> list[Any]:
@@ -275,7 +286,8 @@ def run_report(summary: Mapping[str, Any], figures: Sequence[tuple[str, str]]) -
     lines.append("")
     lines += [f"{name} did not use this scenario's {', '.join(e['unused_kinds'])} measurements.\n"
               for name, e in est.items() if e.get("unused_kinds")]
-    if any(e.get("total_rmse") is not None for e in est.values()):  # Zhang 2016 eq. (20), OSPA
+    if _family(summary["scenario"]) in TOTAL_ERROR_FAMILIES and any(
+            e.get("total_rmse") is not None for e in est.values()):  # Zhang 2016 eq. (20), OSPA
         lines += ["| estimator | total error, eq. (20) [m] | OSPA (c = 10 m, p = 2) [m] |", "|---|---|---|"]
         lines += [f"| {name} | {format_number(e.get('total_rmse'))} | {format_number(e.get('ospa'))} |"
                   for name, e in est.items()]

@@ -151,6 +151,14 @@ class ReproduceContext:
             result.raise_failure()
         return points
 
+    def run_all(self, configs: Sequence[ExperimentConfig], label: str = "runs") -> list[ExperimentResult]:
+        """Every run of several configs as one pool of tasks (the workers stay busy across
+        configs; put the longest first); a failed estimator-run stops here, as in `run`."""
+        results = self._results(configs, label)
+        for result in results:
+            result.raise_failure()
+        return results
+
     def _results(self, configs: Sequence[ExperimentConfig], label: str) -> list[ExperimentResult]:
         """The runs of every config, all scheduled together; runs the checkpoint holds are
         taken from it, the others saved to it as they finish (failed ones are not)."""

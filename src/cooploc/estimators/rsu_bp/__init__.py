@@ -173,6 +173,7 @@ class RsuBP:
         N = params.n_particles
         self.vehicles = Particles(np.zeros((0, N, self.dx)), np.zeros((0, N)))
         self.last_k: int | None = None
+        self._kernel_buffer = np.zeros(0, dtype=np.float32)   # the pair kernel's values, reused
         self.p_d = float(setup.detection_probability)
         self.clutter_intensity = 0.0
         if setup.clutter_rate > 0:
@@ -424,7 +425,11 @@ class RsuBP:
         c_b = (X @ Hx.T)[s_b]                                                     # H x_l
         log_wx = normalize_log_weights(log_phi_chi)[0]                            # ρ^(0) = φχ
         store = s_b.size * N * N * 4 <= prm.kernel_memory_mb * 2**20
-        G = pair_kernel(z_b, cov_b, a_b, c_b) if store else None
+        G = None
+        if store:
+            if self._kernel_buffer.size < s_b.size * N * N:   # kept across steps (see pair_kernel)
+                self._kernel_buffer = np.empty(s_b.size * N * N, dtype=np.float32)
+            G = pair_kernel(z_b, cov_b, a_b, c_b, self._kernel_buffer)
 
         def over_x(weights: FloatArray) -> FloatArray:      # log Σ_l w_{b,l} G[b, j, l]
             return G.log_sum_over_second(weights) if G is not None else \
