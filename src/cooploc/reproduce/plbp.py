@@ -392,7 +392,7 @@ def _scene_report(scene: str, d: dict[str, Any]) -> list[str]:
     lines = [
         f"## `{scene}`",
         "",
-        f"{preset.summary} ({preset.params.field_of_view:.3g} rad field of view; "  # type: ignore[attr-defined]
+        f"{preset.summary} (field of view Δ = {np.degrees(d['scenario_params']['field_of_view']):.0f}°; "
         f"`cooploc.scenarios.{preset.generator.__module__.rsplit('.', 1)[-1]}`). A non-anchor vehicle "  # type: ignore[union-attr]
         f"measures {ref['aoa_rows_per_vehicle']:.1f} AoA rows on average; {_pct(ref['share_without_rows'])} "
         "measure none (no neighbour within R_c).",
