@@ -34,13 +34,17 @@ def _runs(seed: int, runs: int, **overrides):
 
 
 def test_bearing_and_field_of_view_by_hand() -> None:
-    aoa = AngleOfArrival(default_cov=np.array([[0.1]]))            # Δ = π/3
+    aoa = AngleOfArrival(default_cov=np.array([[0.1]]), field_of_view=np.pi / 3)
     receiver = np.array([0.0, 0.0, 0.0])
     points = np.array([[0.0, 10.0, 0.0], [10.0, 0.0, 0.0], [-10.0, -1e-9, 0.0], [5.0, -5.0, 0.0]])
     theta = aoa.bearing(receiver, points)
     np.testing.assert_allclose(theta, [np.pi / 2, 0.0, -np.pi, -np.pi / 4], atol=1e-9)
-    # left array sees [π/6, 5π/6], right array [−5π/6, −π/6]: ahead and behind are blind
+    # Δ = π/3: left array sees [π/6, 5π/6], right array [−5π/6, −π/6]: ahead and behind are blind
     np.testing.assert_array_equal(aoa.in_view(theta), [True, False, False, True])
+    # the default Δ = π/2: each array sees its half-plane, the two together every direction
+    wide = AngleOfArrival(default_cov=np.array([[0.1]]))
+    assert wide.field_of_view == np.pi / 2
+    np.testing.assert_array_equal(wide.in_view(np.linspace(-np.pi, np.pi, 721)), True)
     # a receiver heading north (α = π/2) sees the point ahead of the first one to its right
     assert aoa.bearing(np.array([0.0, 0.0, np.pi / 2]), points[1]) == pytest.approx(-np.pi / 2)
 
@@ -155,6 +159,13 @@ def test_recording_round_trip(tmp_path, seed: int) -> None:
 def test_presets_and_validation() -> None:
     assert get_preset("aoa-grid").params.n_steps == 1
     assert get_preset("aoa-grid-tracking").params.n_steps > 1
+    # the notes' default field of view, in the snapshot and its tracking variant alike
+    for name in ("aoa-grid", "aoa-grid-tracking"):
+        assert get_preset(name).params.field_of_view == np.pi / 2, name
+    rec = get_preset("aoa-grid-tracking").generate(np.random.default_rng(0),
+                                                   get_preset("aoa-grid-tracking").params.with_overrides(
+                                                       {"n_steps": 2}))
+    assert rec.setup.sensors["aoa"].field_of_view == np.pi / 2
     with pytest.raises(ConfigError, match="field_of_view"):
         AoaGridParams(field_of_view=3.0)
     with pytest.raises(ConfigError, match="block_size"):

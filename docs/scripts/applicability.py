@@ -25,6 +25,7 @@ FAMILIES = {
     "gulati-2v": ("gulati-*", {"n_steps": 3}),
     "aoa-grid": ("aoa-grid", {}),
     "aoa-grid-tracking": ("aoa-grid-tracking", {"n_steps": 3}),
+    "aoa-manhattan": ("aoa-manhattan", {}),
 }
 
 

@@ -24,6 +24,7 @@ FIGURES: dict[str, dict[str, object]] = {
     "zhang2016-ct4": {},
     "gulati-4v": {},
     "aoa-grid": {},
+    "aoa-manhattan": {},
     "sumo-berlin-tlr": {"duration": 60.0},
 }
 

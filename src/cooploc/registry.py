@@ -94,6 +94,7 @@ BUILTIN_SCENARIOS = (
     "cooploc.scenarios.zhang2016",
     "cooploc.scenarios.gulati",
     "cooploc.scenarios.aoa_grid",
+    "cooploc.scenarios.aoa_manhattan",
     "cooploc.scenarios.sumo",
 )
 

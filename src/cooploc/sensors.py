@@ -411,15 +411,16 @@ class AngleOfArrival:
         whose arrays differ from the default.
     default_cov : (1, 1) σ²_θ of every other receiver.
     state_indices : indices of (p_x, p_y, α) in the vehicle state.
-    field_of_view : Δ in rad, half-width of each array's field of view (≤ π/2; π/2
-        sees all around).
+    field_of_view : Δ in rad, half-width of each array's field of view, at most and by
+        default π/2: a linear array sees the half-plane on its side, so the two see all
+        around (`papers/plbp_model_notes.md`).
     """
 
     name: ClassVar[str] = "angle-of-arrival"
     covariances: Mapping[int, FloatArray] = field(default_factory=dict)
     default_cov: FloatArray | None = None
     state_indices: tuple[int, ...] = (0, 1, 2)
-    field_of_view: float = np.pi / 3
+    field_of_view: float = np.pi / 2
 
     def __post_init__(self) -> None:
         covs = {}

@@ -20,6 +20,8 @@ Roads per family (what each scenario module defines; nothing is invented):
   ± `sidewalk_offset`, over the extent the vehicles drive.
 - ``aoa-grid``: the street centre lines through the middle of every `block_size`
   strip and their edges `lanes` × `lane_width` to each side.
+- ``aoa-manhattan``: its avenues' and streets' centre lines and carriageway edges
+  (`cooploc.scenarios.aoa_manhattan.road_lines`).
 - the others (``froehle2018``, ``zhang2016``, ``gulati``) move in an open plane: no
   roads; the true paths of the whole run are drawn faintly instead.
 
@@ -156,6 +158,10 @@ def scene(preset: Any, params: Any, recording: Recording) -> Scene:
         roads = _brambilla_roads(params, recording)
     elif preset.family == "aoa-grid":
         roads = _grid_roads(params)
+    elif preset.family == "aoa-manhattan":
+        from cooploc.scenarios.aoa_manhattan import road_lines
+
+        roads = polylines(road_lines(params))
     else:
         paths = _paths(recording)
     return Scene(roads, junctions, paths, poses, tuple(labels), static_ids, static_positions,
