@@ -39,7 +39,8 @@ def _brute_force_match(ids, pos, fids, fpos) -> dict[int, int]:
 
 def _brute_force_paired(row_tracks, track_ids, track_pos, feature_ids, feature_pos) -> list[np.ndarray]:
     """The rule of `paired_features` written out step by step, with brute-force matchings."""
-    matches = [_brute_force_match(*a) for a in zip(track_ids, track_pos, feature_ids, feature_pos, strict=True)]
+    matches = [_brute_force_match(*step)
+               for step in zip(track_ids, track_pos, feature_ids, feature_pos, strict=True)]
     out = []
     for k, rows in enumerate(row_tracks):
         paired = []
