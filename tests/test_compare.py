@@ -73,6 +73,7 @@ def test_ratios_and_interval_come_from_the_scenario_summaries(compared):
     icp = summary["estimators"]["icp"]["vehicle_rmse_all"]
     row = road["estimators"]["icp"]
     assert row["vehicle_rmse"] == icp
+    assert row["association_accuracy_per_step"] is None   # known association: nothing decided
     assert row["ratio_bound"] == pytest.approx(icp / summary["estimators"]["oracle-kf"]["vehicle_rmse_all"])
     assert row["ratio_gnss_kf"] == pytest.approx(icp / summary["estimators"]["gnss-kf"]["vehicle_rmse_all"])
     assert road["estimators"]["oracle-kf"]["ratio_bound"] == 1.0

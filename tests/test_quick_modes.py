@@ -142,22 +142,26 @@ def test_plbp(tmp_path: Path) -> None:
 def test_brambilla2020(tmp_path: Path) -> None:
     data = _quick("brambilla2020", tmp_path)
     for name in ("fig7_road_rmse_over_time", "fig8_rmse_vs_distance_features", "fig9_association_vs_features",
-                 "fig10_rmse_vs_distance_speed", "fig11_association_vs_speed"):
+                 "fig10_rmse_vs_distance_speed", "fig11_association_vs_speed", "bounds_ratio"):
         assert (tmp_path / f"{name}.png").stat().st_size > 0
-    assert set(data["fig8"]) == {"N_f = 3", "N_f = 10", "N_f = 20", "N_f = 60"}
-    assert "icp-da-lc η=1" in data["fig8"]["N_f = 20"]
+    assert set(data["crossroad_features"]) == {"3", "10", "20", "60"}
+    assert "icp-da-lc η=1" in data["crossroad_features"]["20"]["curves"]
     report = (tmp_path / "report.md").read_text()
     assert "54%" in report and "92%" in report            # the paper's association figures
+    claims = json.loads((tmp_path / "claims.json").read_text())
+    assert len(claims) > 20
+    assert {c["outcome"] for c in claims} <= {"reproduced", "not reproduced", "not checked"}
 
     # Fig. 7: both DA methods below GNSS at every spacing (seeds 0–2: ≤ 0.96 × over all
     # steps, the first ones before any V2F row included)
-    for spacing, rmse in data["road_vehicle_rmse_all"].items():
+    for spacing, point in data["road"].items():
+        rmse = point["rmse"]
         for name in ("icp-da-pf", "icp-da-lc", "icp"):
             assert rmse[name] < rmse["gnss-kf"], (spacing, name, rmse)
     # Figs. 8 and 10: ICP-DA-LC with η_TH = 0.5 below GNSS everywhere, well below from N_f = 10
     # and with moving features (seeds 0–2: ≤ 0.93 × at N_f = 3, ≤ 0.81 × elsewhere)
-    points = [(f"N_f = {k}", int(k) >= 10, v) for k, v in data["fig8_vehicle_rmse_all"].items()]
-    points += [(f"v_f = {k}", True, v) for k, v in data["fig10_vehicle_rmse_all"].items()]
+    points = [(f"N_f = {k}", int(k) >= 10, v["rmse"]) for k, v in data["crossroad_features"].items()]
+    points += [(f"v_f = {k}", True, v["rmse"]) for k, v in data["crossroad_speed"].items()]
     for point, significant, rmse in points:
         bound = 0.9 * rmse["gnss-kf"] if significant else rmse["gnss-kf"]
         assert rmse["icp-da-lc"] < bound, (point, rmse)

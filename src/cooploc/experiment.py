@@ -129,12 +129,14 @@ class RunResult:
     errors: dict[str, ErrorTable]
     step_seconds: dict[str, float]
     n_steps: dict[str, int]
-    association: dict[str, tuple[int, int]] = field(default_factory=dict)
+    association: dict[str, tuple[int, int]] = field(default_factory=dict)  # (correct, paired) per track
     discarded: dict[str, tuple[int, int]] = field(default_factory=dict)
     ospa: dict[str, np.ndarray] = field(default_factory=dict)  # per step, m (metrics.ospa)
     failures: dict[str, Failure] = field(default_factory=dict)
     unused_kinds: dict[str, tuple[str, ...]] = field(default_factory=dict)  # registry.unused_kinds
     nis: dict[str, tuple[float, int]] = field(default_factory=dict)  # (Σ NIS, Σ dof), `_nis_total`
+    # (correct, paired) V2F rows by the per-step measure (`metrics.score_association`)
+    association_per_step: dict[str, tuple[int, int]] = field(default_factory=dict)
     # run 0 only: each estimator's estimates for the viewer (`cooploc.view.estimates`)
     estimates: dict[str, list[Estimate]] | None = None
 
@@ -305,6 +307,7 @@ def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = No
     recording = run_recording(config, run)
     _, estimator_rngs = run_generators(config.seed, run, [e.name for e in config.estimators])
     errors, seconds, steps, association, discarded, ospa, unused, nis = {}, {}, {}, {}, {}, {}, {}, {}
+    per_step = {}
     failures = {}
     kept: dict[str, list[Estimate]] | None = {} if (run == 0 if keep_estimates is None
                                                     else keep_estimates) else None
@@ -321,6 +324,7 @@ def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = No
         estimates, score = score_association(recording, estimates)
         if score is not None and score.total:
             association[spec.name] = (score.correct, score.total)
+            per_step[spec.name] = (score.per_step_correct, score.total)
         if score is not None and score.discarded is not None:
             discarded[spec.name] = (score.discarded, score.rows)
         if (total := _nis_total(estimates)) is not None:
@@ -334,7 +338,7 @@ def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = No
 
             kept[spec.name] = kept_estimates(recording, estimates)
     return RunResult(run, errors, seconds, steps, association, discarded, ospa, failures=failures,
-                     unused_kinds=unused, nis=nis, estimates=kept)
+                     unused_kinds=unused, nis=nis, association_per_step=per_step, estimates=kept)
 
 
 # ----------------------------------------------------------------------------

@@ -8,13 +8,38 @@
   runs and entities is pooled; `per_entity_rmse` pools steps (and runs) per id.
 - `ecdf`: the empirical CDF (sorted values and probabilities i/n).
 - `association_accuracy`: share of rows whose decided origin equals the true one.
-- `track_identities` / `relabel`: estimators that start their own feature tracks
-  (ids of their own) are scored by giving each track the true feature most of its
-  rows came from over the run; association accuracy is then the share of paired rows
-  whose origin is their track's feature.
-- `score_association`: both of the above over a run, from the `Estimate.info` keys
-  that `cooploc.types.Estimate` defines (``v2f_association``, ``v2f_track``,
-  ``v2f_discarded``).
+- Association of V2F rows, two measures (`score_association` computes both over a run,
+  from the `Estimate.info` keys that `cooploc.types.Estimate` defines:
+  ``v2f_association``, ``v2f_track``, ``v2f_discarded``):
+
+  - *per track over the run* (summary.json ``association_accuracy``): estimators that
+    start their own feature tracks (ids of their own) are scored by giving each track
+    the true feature most of its rows came from over the whole run
+    (`track_identities`; `relabel` renames the feature estimates the same way), and
+    the measure is the share of paired rows whose origin is their track's feature. A
+    track whose rows switch between two features for part of the run still counts
+    those rows as right if they are the majority, so this measures how consistently
+    rows are grouped, not whether each was paired with the right feature belief.
+  - *per step* (``association_accuracy_per_step``), the measure of Brambilla et al.
+    2020 §V ("probability of correct measurement-feature association", 54 % / 92 % for
+    ICP-DA-LC at d_f = 0.5 / 3 m; Figs. 9 and 11): the share of paired rows (rows
+    left unused are not in it, so that discarding ambiguous rows can raise it, as the
+    paper's Fig. 9 says it does) that were paired with the belief of their true
+    feature. The paper's estimators hold one belief per true feature, so the pairing
+    α̂_ik = ℓ is right when row ℓ came from feature k. Estimators that name tracks
+    themselves are matched to the true features at every step (`paired_features`):
+    the tracks estimated at step k and the true features present at k are paired
+    one-to-one by the optimal assignment of their positions (`optimal_assignment`,
+    minimum summed squared distance: a shift common to all tracks does not change it
+    when there are as many tracks as features; a track left over stands for no
+    feature); a row given to a track at step k is right when its origin is the
+    feature that track was matched to at the last step before k at which it was
+    estimated — the belief the association of step k paired it with (the prior
+    b_k^(0) of eqs. 12–13) — or, for a track first estimated at k, at k. A swap of
+    two tracks' features therefore costs the rows of the step where it happens, as a
+    wrong pairing costs the paper's measure, whatever the rest of the run does.
+    Estimators that decide by the scenario's feature ids (``v2f_association``) have
+    the identities fixed, and both measures are the same share.
 - `nees`: normalised estimation error squared (x − x̂)ᵀ P⁻¹ (x − x̂), for consistency
   checks against χ² bounds. `evaluate` reports the 2-D *position* NEES of every scored
   entity (the position block of the estimate's covariance; χ²₂ for a consistent
@@ -72,6 +97,7 @@ __all__ = [
     "optimal_assignment",
     "ospa",
     "ospa_per_step",
+    "paired_features",
     "per_entity_rmse",
     "relabel",
     "rmse",
@@ -152,52 +178,116 @@ def relabel(states: StateSet, identity: Mapping[int, int]) -> StateSet:
     return StateSet(new[rows], states.mean[rows], states.cov[rows])
 
 
+def paired_features(row_tracks: Sequence[IntArray], track_ids: Sequence[IntArray],
+                    track_positions: Sequence[FloatArray], feature_ids: Sequence[IntArray],
+                    feature_positions: Sequence[FloatArray]) -> list[IntArray]:
+    """The true feature whose belief each V2F row was paired with, step by step (−1: the
+    row was not paired, or its track stands for no feature), for the per-step
+    association measure (module docstring).
+
+    Step k's arrays: `row_tracks[k]` (M_k,) the track id each row was given (−1: none);
+    the tracks estimated at k, `track_ids[k]` (n_k,) at `track_positions[k]` (n_k, 2) m;
+    the true features present at k, `feature_ids[k]` (m_k,) at `feature_positions[k]`
+    (m_k, 2) m. At every step the tracks and the features are matched one-to-one by
+    `optimal_assignment`. A row given to a track at step k was paired with the feature
+    that track was matched to at the last step before k at which it was estimated; if
+    the track was first estimated at k, with its match at k.
+    """
+    out: list[IntArray] = []
+    last: dict[int, int] = {}        # track → its match at the last step it was estimated
+    for rows, ids, pos, fids, fpos in zip(row_tracks, track_ids, track_positions, feature_ids,
+                                          feature_positions, strict=True):
+        now = _matched(ids, pos, fids, fpos)
+        out.append(np.array([last.get(t, now.get(t, -1)) if t >= 0 else -1
+                             for t in np.asarray(rows, np.int64).tolist()], dtype=np.int64))
+        last.update(now)
+    return out
+
+
+def _matched(ids: IntArray, positions: FloatArray, feature_ids: IntArray, feature_positions: FloatArray
+             ) -> dict[int, int]:
+    """Track id → the true feature id the optimal assignment gives it (−1: left over)."""
+    ids, feature_ids = np.asarray(ids, np.int64), np.asarray(feature_ids, np.int64)
+    now = dict.fromkeys(ids.tolist(), -1)
+    if ids.size and feature_ids.size:
+        rows, cols = optimal_assignment(np.asarray(positions, float), np.asarray(feature_positions, float))
+        now.update(zip(ids[rows].tolist(), feature_ids[cols].tolist(), strict=True))
+    return now
+
+
 @dataclass(frozen=True)
 class AssociationScore:
-    """V2F association of one run: `correct` of `total` rows went to their true origin;
+    """V2F association of one run: `correct` of `total` paired rows went to their true
+    origin by the track measure, `per_step_correct` of them by the per-step measure
+    (module docstring; the same count for estimators that decide by feature id);
     `discarded` of `rows` were left unused (None for estimators that name no tracks)."""
 
     correct: int
     total: int
     discarded: int | None = None
     rows: int | None = None
+    per_step_correct: int = 0
 
 
 def score_association(recording: Recording, estimates: Sequence[Estimate]
                       ) -> tuple[list[Estimate], AssociationScore | None]:
-    """Association accuracy of a run, and the estimates with self-named feature tracks
-    renamed to the true feature they stand for (`track_identities`, `relabel`).
+    """Association of a run by both measures (module docstring), and the estimates with
+    self-named feature tracks renamed to the true feature they stand for over the run
+    (`track_identities`, `relabel`).
 
     Rows decided by feature id (``info["v2f_association"]``) count as correct when the
     id is their true origin; rows given to an estimator's own track
-    (``info["v2f_track"]``) when the track stands for their true origin. None when no
-    estimate reports either key.
+    (``info["v2f_track"]``) when the track stands for their true origin — over the run
+    (`correct`), or at the row's step (`per_step_correct`, `paired_features`). None
+    when no estimate reports either key.
     """
-    correct = total = dropped = rows = 0
-    tracks, track_origins = [], []
+    correct = total = dropped = rows = per_step = 0
+    steps, tracks, track_origins = [], [], []
     for k, estimate in enumerate(estimates):
         true = recording.truth.origin[k].get("v2f", np.zeros(0, np.int64))
         decided = estimate.info.get("v2f_association")
         if decided is not None and "v2f_track" not in estimate.info:
-            correct += int(np.sum(np.asarray(decided) == true))
-            total += int(true.size)
+            hits = int(np.sum(np.asarray(decided) == true))
+            correct, per_step, total = correct + hits, per_step + hits, total + int(true.size)
         track = estimate.info.get("v2f_track")
         if track is not None:
+            steps.append(k)
             tracks.append(np.asarray(track))
             track_origins.append(true)
             dropped += int(estimate.info.get("v2f_discarded", 0))
             rows += int(true.size)
     if not tracks:
-        return list(estimates), (AssociationScore(correct, total) if total else None)
+        return list(estimates), (AssociationScore(correct, total, per_step_correct=per_step)
+                                 if total else None)
     identity = track_identities(tracks, track_origins)
-    for track, true in zip(tracks, track_origins, strict=True):
+    paired_with = _paired_features_of_run(recording, estimates, steps, tracks)
+    for track, true, feature in zip(tracks, track_origins, paired_with, strict=True):
         paired = track >= 0
         named = np.array([identity.get(int(t), -2) for t in track[paired]], dtype=np.int64)
         correct += int(np.sum(named == true[paired]))
+        per_step += int(np.sum(feature[paired] == true[paired]))
         total += int(paired.sum())
     renamed = [dataclasses.replace(e, features=relabel(e.features, identity))
                if e.features is not None else e for e in estimates]
-    return renamed, AssociationScore(correct, total, dropped, rows)
+    return renamed, AssociationScore(correct, total, dropped, rows, per_step)
+
+
+def _paired_features_of_run(recording: Recording, estimates: Sequence[Estimate], steps: Sequence[int],
+                            tracks: Sequence[IntArray]) -> list[IntArray]:
+    """`paired_features` of the rows `tracks` of `steps` (the steps that report tracks)."""
+    truth, layout = recording.truth, recording.setup.feature_layout
+    if layout is None or truth.feature_ids.size == 0:
+        return [np.full(t.size, -1, np.int64) for t in tracks]
+    pos = list(layout.position)
+    track_ids, track_pos, feature_ids, feature_pos = [], [], [], []
+    for k in steps:
+        est = estimates[k].features
+        track_ids.append(np.zeros(0, np.int64) if est is None else est.ids)
+        track_pos.append(np.zeros((0, len(pos))) if est is None else est.mean[:, pos])
+        present = truth.feature_present[k]
+        feature_ids.append(truth.feature_ids[present])
+        feature_pos.append(truth.feature_states[k][present][:, pos])
+    return paired_features(tracks, track_ids, track_pos, feature_ids, feature_pos)
 
 
 def nees(estimate: StateSet, true_states: FloatArray) -> FloatArray:

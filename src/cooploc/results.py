@@ -1,7 +1,8 @@
 """What a Monte Carlo experiment leaves behind (DESIGN §6): summary, error table, folder.
 
 - `summarize(result)`: the `summary.json` contract — per estimator, vehicle RMSE per id
-  and pooled, per-run RMSE, feature and heading RMSE, association accuracy, the share
+  and pooled, per-run RMSE, feature and heading RMSE, association accuracy (per track
+  over the run, and per step as Brambilla 2020 measures it: `cooploc.metrics`), the share
   of V2F rows left unused, steps per second, and Zhang 2016's total error (eq. 20) and
   OSPA; consistency (mean NEES, and NIS per degree of freedom of the filters that report
   ``Estimate.info["nis"]``); the failed and the diverged estimator-runs; whether every run
@@ -169,6 +170,8 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
         seconds = sum(r.step_seconds[spec.name] for r in done)
         steps = sum(r.n_steps[spec.name] for r in done)
         assoc = [r.association[spec.name] for r in result.runs if spec.name in r.association]
+        assoc_step = [r.association_per_step[spec.name] for r in result.runs
+                      if spec.name in r.association_per_step]
         dropped = [r.discarded[spec.name] for r in result.runs if spec.name in r.discarded]
         heading = table.err_heading[vehicles]
         ospa_steps = [r.ospa[spec.name] for r in result.runs if spec.name in r.ospa]
@@ -183,6 +186,9 @@ def summarize(result: ExperimentResult) -> dict[str, Any]:
             else None,
             "association_accuracy": (sum(c for c, _ in assoc) / sum(t for _, t in assoc))
             if assoc else None,
+            # added by issue 15: Brambilla 2020's per-step measure (metrics module docstring)
+            "association_accuracy_per_step": (sum(c for c, _ in assoc_step) / sum(t for _, t in assoc_step))
+            if assoc_step else None,
             "discarded_share": (sum(d for d, _ in dropped) / sum(t for _, t in dropped))
             if dropped and sum(t for _, t in dropped) else None,
             "steps_per_second": steps / seconds if seconds > 0 else None,
@@ -402,6 +408,7 @@ def write_run(run: RunResult, config: ExperimentConfig, folder: str | os.PathLik
         "step_seconds": run.step_seconds,
         "n_steps": run.n_steps,
         "association": run.association,
+        "association_per_step": run.association_per_step,
         "discarded": run.discarded,
         "ospa": {name: values.tolist() for name, values in run.ospa.items()},
         "failures": {name: {"step": f.step, "what": f.what, "traceback": f.traceback}
@@ -434,6 +441,7 @@ def read_runs(folder: str | os.PathLike[str]) -> list[RunResult]:
         runs.append(RunResult(
             record["run"], errors, record["step_seconds"], record["n_steps"],
             association={k: tuple(v) for k, v in record["association"].items()},
+            association_per_step={k: tuple(v) for k, v in record.get("association_per_step", {}).items()},
             discarded={k: tuple(v) for k, v in record["discarded"].items()},
             ospa={k: np.array(v, dtype=float) for k, v in record["ospa"].items()},
             failures={k: Failure(k, record["run"], f["step"], f["what"], f["traceback"])

@@ -700,7 +700,8 @@ class Estimate:
     - ``"v2f_track"`` ((M,) int): the estimator's own track id of each V2F row (−1:
       none), for estimators that start feature tracks of their own; tracks are scored
       as the true feature most of their rows came from (`metrics.score_association`),
-      and feature estimates are renamed through that map.
+      and feature estimates are renamed through that map; and per step, through the
+      tracks' positions in `features` (same ids), as `metrics.paired_features` says.
     - ``"v2f_discarded"`` (int): V2F rows left unused this step (with ``"v2f_track"``);
       summed into `discarded_share`.
     - ``"nis"`` ((float, int)): the normalised innovation squared νᵀ S⁻¹ ν of this step's

@@ -11,8 +11,10 @@ Three estimators, one module each, each building on the one before:
 
 - `gaussian_bp` — `icp`: known association, Gaussian BPA-L (eqs. 19–22) with
   consensus; every agent's copies of the feature beliefs, their prediction (12) and
-  sharing. What runs by default and what the `feedback` / `feature_memory` switches
-  add: that module's docstring.
+  sharing. By default each step's BPA-L fuses that step's V2F rows only, from the
+  GNSS-only vehicle filters and uniform feature priors; the paper's recursion over
+  steps (11)–(12) is switched on by `feedback` and `feature_memory`: that module's
+  docstring says what runs, and why the defaults are what they are.
 - `data_association` — `icp-da-lc`: BPA-DA (13)–(17) at each vehicle, MAP pairing with
   a threshold (30), births of new features agreed by flooding, then the Gaussian BPA-L.
 - `particle_bp` — `icp-da-pf`: the same association with soft pairings (18) and a
