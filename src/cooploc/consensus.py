@@ -263,29 +263,48 @@ def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
     into = (np.ones(network.n_edges, dtype=bool) if accept is None
             else np.asarray(accept, dtype=bool)[network.target])   # edges into agents that take copies
     for _ in range(n_rounds if network.n_edges else 0):
-        edges, blocks = np.nonzero(fresh[network.source] & into[:, None])   # fresh blocks to each neighbour
+        edges, blocks = _fresh_pairs(fresh, network.source, into)  # fresh blocks to each neighbour
         if edges.size == 0:
             break
-        # edges come sorted (row-major nonzero): count the distinct ones without a sort
-        received = network.exchange_blocks(payload, edges, blocks, int(np.count_nonzero(np.diff(edges))) + 1)
         target = network.target[edges]
         rank = priority[network.source[edges], blocks]
         wanted = ~have[target, blocks] | (rank > priority[target, blocks])
-        edges, blocks, target, received, rank = (edges[wanted], blocks[wanted], target[wanted],
-                                                 received[wanted], rank[wanted])
         # per (target, block) keep the copy with the highest priority
-        order = np.lexsort((-rank, blocks, target))
+        candidates = np.flatnonzero(wanted)
+        order = candidates[np.lexsort((-rank[candidates], blocks[candidates], target[candidates]))]
         first = np.ones(order.size, dtype=bool)
         key = target[order] * have.shape[1] + blocks[order]
         first[1:] = key[1:] != key[:-1]
         pick = order[first]
+        # every pair is delivered and counted; only the kept copies are read
+        # (edges come sorted: the distinct ones are counted without a sort)
+        received = network.exchange_blocks(payload, edges, blocks, int(np.count_nonzero(np.diff(edges))) + 1,
+                                           read=pick)
         fresh = np.zeros_like(have)
         t, b = target[pick], blocks[pick]
         have[t, b] = True
         fresh[t, b] = True
-        payload[t, b] = received[pick]
+        payload[t, b] = received
         priority[t, b] = rank[pick]
     return have, payload, priority
+
+
+def _fresh_pairs(fresh: _Mask, source: IntArray, into: _Mask) -> tuple[IntArray, IntArray]:
+    """(edge, block) of every fresh block of an edge's source, on the edges into agents that
+    take copies, sorted by edge then block: ``np.nonzero(fresh[source] & into[:, None])``
+    without the (edges × blocks) mask, which a dense city (10⁵ edges, 10³ features) cannot
+    afford; the cost is the pairs themselves."""
+    agent, block = np.nonzero(fresh)                              # by agent, then block
+    count = np.bincount(agent, minlength=fresh.shape[0])
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    edges = np.flatnonzero(into)
+    per_edge = count[source[edges]]
+    total = int(per_edge.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    pair_edge = np.repeat(edges, per_edge)
+    offset = np.arange(total) - np.repeat(np.cumsum(per_edge) - per_edge, per_edge)
+    return pair_edge, block[first[source[pair_edge]] + offset]
 
 
 def _check_iterations(n_iterations: int) -> None:
