@@ -48,7 +48,9 @@ holds): the remaining rounds would repeat it exactly, so the result is bitwise t
 all N_cons rounds. The agents, who cannot see that every other agent is at the fixed
 point, still send those rounds, so they are counted (`Network.count`).
 
-All traffic goes through `Network.exchange_blocks`, so messages and bytes are counted.
+All traffic is counted by the `Network` (`exchange_blocks`, `deliver`, `count`): an
+average round is computed by one compiled pass over the active pairs
+(`cooploc._consensus_kernels`), bitwise the array form, and counted as delivered.
 """
 
 from __future__ import annotations
@@ -95,11 +97,7 @@ class GroupConsensus:
         self.edges, self.blocks, self.slot = self.edges[order], self.blocks[order], self.slot[order]
         self._to = np.searchsorted(self._member_slots, self.slot)                  # receiver's block
         self._from = np.searchsorted(self._member_slots, network.source[self.edges] * G + self.blocks)
-        P, M = self.edges.size, self._member_slots.size
         self._n_messages = int(np.unique(self.edges).size)
-        from scipy import sparse  # here, not at import: `cooploc list` must not load SciPy
-
-        self._sum_into = sparse.csr_matrix((np.ones(P), (self._to, np.arange(P))), shape=(M, P))
         self._weights: FloatArray | None = None
         self._leader: np.ndarray | None = None
 
@@ -151,14 +149,21 @@ class GroupConsensus:
         mine = np.array(mine, dtype=float)
         if not self.active:
             return mine
-        w = self.weights()[:, None]
+        from cooploc._consensus_kernels import average_round
+
+        w = self.weights()
+        starts = np.r_[0, np.flatnonzero(np.diff(self._to)) + 1, self._to.size]
+        receivers = self._to[starts[:-1]]
+        mine = np.ascontiguousarray(mine.reshape(mine.shape[0], -1))
+        out = np.empty_like(mine)
         for done in range(1, self.n_iterations + 1):
-            received = self._exchange(mine)                                           # (P, r)
-            own = mine[self._to]
-            if np.array_equal(received, own):     # a fixed point: the other rounds change nothing
+            # one round: every pair carries its sender's block (counted as delivered)
+            self.network.count(self._n_messages, self.edges.size * mine.shape[1])
+            if not average_round(mine, self._from, starts, receivers, w, out):
+                # a fixed point: the other rounds change nothing
                 self._count_rounds(self.n_iterations - done, mine.shape[1])
                 break
-            mine = mine + self._sum_into @ (w * (received - own))
+            mine, out = out, mine
         return mine
 
     def maximum_members(self, mine: np.ndarray) -> np.ndarray:
