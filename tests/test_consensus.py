@@ -243,3 +243,22 @@ def test_member_runs_equal_the_grouped_runs_bitwise(rng: np.random.Generator) ->
         full = dense(values)
         np.testing.assert_array_equal(full[ai, gi], compact(values[ai, gi]))
         np.testing.assert_array_equal(full[~members], values[~members])
+
+
+def test_flood_pairs_equal_the_dense_mask() -> None:
+    """The sparse enumeration of (edge, fresh block) pairs is the dense mask's nonzero, in
+    its order (ties between equal priorities are broken by that order)."""
+    from cooploc.consensus import _fresh_pairs
+
+    rng = np.random.default_rng(3)
+    n, G = 30, 7
+    links = np.array([(i, j) for i in range(n) for j in range(i + 1, n) if rng.random() < 0.2])
+    net = Network(np.arange(n) * 3 + 1, links * 3 + 1)
+    fresh = rng.random((n, G)) < 0.3
+    into = rng.random(net.n_edges) < 0.8
+    want = np.nonzero(fresh[net.source] & into[:, None])
+    got = _fresh_pairs(fresh, net.source, into)
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    empty = _fresh_pairs(np.zeros((n, G), bool), net.source, into)
+    assert empty[0].size == 0 and empty[1].size == 0

@@ -48,7 +48,9 @@ holds): the remaining rounds would repeat it exactly, so the result is bitwise t
 all N_cons rounds. The agents, who cannot see that every other agent is at the fixed
 point, still send those rounds, so they are counted (`Network.count`).
 
-All traffic goes through `Network.exchange_blocks`, so messages and bytes are counted.
+All traffic is counted by the `Network` (`exchange_blocks`, `deliver`, `count`): an
+average round is computed by one compiled pass over the active pairs
+(`cooploc._consensus_kernels`), bitwise the array form, and counted as delivered.
 """
 
 from __future__ import annotations
@@ -95,11 +97,7 @@ class GroupConsensus:
         self.edges, self.blocks, self.slot = self.edges[order], self.blocks[order], self.slot[order]
         self._to = np.searchsorted(self._member_slots, self.slot)                  # receiver's block
         self._from = np.searchsorted(self._member_slots, network.source[self.edges] * G + self.blocks)
-        P, M = self.edges.size, self._member_slots.size
         self._n_messages = int(np.unique(self.edges).size)
-        from scipy import sparse  # here, not at import: `cooploc list` must not load SciPy
-
-        self._sum_into = sparse.csr_matrix((np.ones(P), (self._to, np.arange(P))), shape=(M, P))
         self._weights: FloatArray | None = None
         self._leader: np.ndarray | None = None
 
@@ -151,14 +149,21 @@ class GroupConsensus:
         mine = np.array(mine, dtype=float)
         if not self.active:
             return mine
-        w = self.weights()[:, None]
+        from cooploc._consensus_kernels import average_round
+
+        w = self.weights()
+        starts = np.r_[0, np.flatnonzero(np.diff(self._to)) + 1, self._to.size]
+        receivers = self._to[starts[:-1]]
+        mine = np.ascontiguousarray(mine.reshape(mine.shape[0], -1))
+        out = np.empty_like(mine)
         for done in range(1, self.n_iterations + 1):
-            received = self._exchange(mine)                                           # (P, r)
-            own = mine[self._to]
-            if np.array_equal(received, own):     # a fixed point: the other rounds change nothing
+            # one round: every pair carries its sender's block (counted as delivered)
+            self.network.count(self._n_messages, self.edges.size * mine.shape[1])
+            if not average_round(mine, self._from, starts, receivers, w, out):
+                # a fixed point: the other rounds change nothing
                 self._count_rounds(self.n_iterations - done, mine.shape[1])
                 break
-            mine = mine + self._sum_into @ (w * (received - own))
+            mine, out = out, mine
         return mine
 
     def maximum_members(self, mine: np.ndarray) -> np.ndarray:
@@ -263,29 +268,48 @@ def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
     into = (np.ones(network.n_edges, dtype=bool) if accept is None
             else np.asarray(accept, dtype=bool)[network.target])   # edges into agents that take copies
     for _ in range(n_rounds if network.n_edges else 0):
-        edges, blocks = np.nonzero(fresh[network.source] & into[:, None])   # fresh blocks to each neighbour
+        edges, blocks = _fresh_pairs(fresh, network.source, into)  # fresh blocks to each neighbour
         if edges.size == 0:
             break
-        # edges come sorted (row-major nonzero): count the distinct ones without a sort
-        received = network.exchange_blocks(payload, edges, blocks, int(np.count_nonzero(np.diff(edges))) + 1)
         target = network.target[edges]
         rank = priority[network.source[edges], blocks]
         wanted = ~have[target, blocks] | (rank > priority[target, blocks])
-        edges, blocks, target, received, rank = (edges[wanted], blocks[wanted], target[wanted],
-                                                 received[wanted], rank[wanted])
         # per (target, block) keep the copy with the highest priority
-        order = np.lexsort((-rank, blocks, target))
+        candidates = np.flatnonzero(wanted)
+        order = candidates[np.lexsort((-rank[candidates], blocks[candidates], target[candidates]))]
         first = np.ones(order.size, dtype=bool)
         key = target[order] * have.shape[1] + blocks[order]
         first[1:] = key[1:] != key[:-1]
         pick = order[first]
+        # every pair is delivered and counted; only the kept copies are read
+        # (edges come sorted: the distinct ones are counted without a sort)
+        received = network.exchange_blocks(payload, edges, blocks, int(np.count_nonzero(np.diff(edges))) + 1,
+                                           read=pick)
         fresh = np.zeros_like(have)
         t, b = target[pick], blocks[pick]
         have[t, b] = True
         fresh[t, b] = True
-        payload[t, b] = received[pick]
+        payload[t, b] = received
         priority[t, b] = rank[pick]
     return have, payload, priority
+
+
+def _fresh_pairs(fresh: _Mask, source: IntArray, into: _Mask) -> tuple[IntArray, IntArray]:
+    """(edge, block) of every fresh block of an edge's source, on the edges into agents that
+    take copies, sorted by edge then block: ``np.nonzero(fresh[source] & into[:, None])``
+    without the (edges × blocks) mask, which a dense city (10⁵ edges, 10³ features) cannot
+    afford; the cost is the pairs themselves."""
+    agent, block = np.nonzero(fresh)                              # by agent, then block
+    count = np.bincount(agent, minlength=fresh.shape[0])
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    edges = np.flatnonzero(into)
+    per_edge = count[source[edges]]
+    total = int(per_edge.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    pair_edge = np.repeat(edges, per_edge)
+    offset = np.arange(total) - np.repeat(np.cumsum(per_edge) - per_edge, per_edge)
+    return pair_edge, block[first[source[pair_edge]] + offset]
 
 
 def _check_iterations(n_iterations: int) -> None:

@@ -84,12 +84,14 @@ class Network:
         return values[self.source]
 
     def exchange_blocks(self, values: np.ndarray, edges: IntArray, blocks: IntArray,
-                        n_messages: int | None = None) -> np.ndarray:
+                        n_messages: int | None = None, read: IntArray | None = None) -> np.ndarray:
         """One round in which edge `edges[p]` carries only block `blocks[p]` of its source's row.
 
         values (n, B, ...) → (P, ...) with row p = values[source[edges[p]], blocks[p]], as
         received by agent target[edges[p]]. Counts one message per edge used and the
         bytes of the blocks carried (`n_messages`: the number of distinct `edges`, if known).
+        `read` (indices into the pairs) returns only those rows: the receivers keep only
+        them, and the simulation need not copy what they drop (all P are still counted).
         """
         values = np.asarray(values)
         if values.shape[:1] != (self.n_agents,):
@@ -99,6 +101,8 @@ class Network:
             )
         self.messages += int(np.unique(edges).size) if n_messages is None else int(n_messages)
         self.bytes += int(edges.size) * int(np.prod(values.shape[2:], dtype=np.int64)) * 8
+        if read is not None:
+            edges, blocks = edges[read], blocks[read]
         return values[self.source[edges], blocks]
 
     def deliver(self, blocks: np.ndarray, carried: IntArray, n_messages: int) -> np.ndarray:
