@@ -21,8 +21,9 @@ from cooploc._expf import exp_inplace
 from cooploc._particle_kernels import kernel_matrix, quadratic_row
 
 #: the reference is glibc's expf, which exp_inplace reproduces bit for bit
-GLIBC = platform.system() == "Linux" and platform.machine() == "x86_64" and (
-    platform.libc_ver()[0] == "glibc" and tuple(int(x) for x in platform.libc_ver()[1].split(".")[:2]) >= (2, 27))
+_LIBC, _LIBC_VERSION = platform.libc_ver()
+GLIBC = platform.system() == "Linux" and platform.machine() == "x86_64" and _LIBC == "glibc" and (
+    tuple(int(x) for x in _LIBC_VERSION.split(".")[:2]) >= (2, 27))
 
 
 @numba.njit(cache=False)
