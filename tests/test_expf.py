@@ -32,23 +32,19 @@ def _libm_exp(x: np.ndarray, out: np.ndarray) -> None:
         out[i] = np.exp(x[i])
 
 
-@numba.njit(parallel=True, fastmath=True, cache=False)
+@numba.njit(fastmath=True, cache=False)
 def _previous_kernel_matrix(u, vt, out, shift):  # type: ignore[no-untyped-def]
-    """kernel_matrix as it was: one scalar np.exp (the C library's expf) per pair."""
-    B, Nj = u.shape[0], u.shape[1]
-    Nl = vt.shape[2]
-    half = np.float32(0.5)
-    for bj in numba.prange(B * Nj):
-        b = bj // Nj
-        j = bj - b * Nj
-        row = out[b, j]
-        quadratic_row(u, vt, b, j, row)
-        q_min = row[0]
-        for l in range(Nl):
-            q_min = min(q_min, row[l])
-        shift[b, j] = -0.5 * q_min
-        for l in range(Nl):
-            row[l] = np.exp(-half * (row[l] - q_min))
+    """kernel_matrix as it was: per row, a running minimum and one scalar exp (the C
+    library's expf) per pair, here over whole rows."""
+    for b in range(u.shape[0]):
+        for j in range(u.shape[1]):
+            q = out[b, j]
+            quadratic_row(u, vt, b, j, q)
+            lowest = q[0]
+            for value in q:
+                lowest = min(lowest, value)
+            shift[b, j] = -0.5 * lowest
+            q[:] = np.exp(np.float32(-0.5) * (q - lowest))
 
 
 def _assert_same(ours: np.ndarray, reference: np.ndarray) -> None:
