@@ -121,6 +121,9 @@ def test_report_sentences_come_from_the_verdicts() -> None:
     off = copy.deepcopy(data)
     off["fig3_per_run_vehicle_rmse"]["gnss-kf"]["1"] = _runs(3.1, 0.05, 12)
     assert "and our simulation does not agree with that" in EXPERIMENT.markdown(off)
+    few = copy.deepcopy(data)
+    few["fig3_per_run_vehicle_rmse"]["gnss-kf"]["1"] = _runs(2.55, 0.4, 13)    # a wide interval
+    assert "these runs cannot tell whether our simulation agrees" in EXPERIMENT.markdown(few)
     off["analytic_gnss_rmse"]["1"] = 3.52
     assert "3.5 m for the GNSS-only filter follows from" in EXPERIMENT.markdown(off)
 
