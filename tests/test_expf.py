@@ -21,8 +21,9 @@ from cooploc._expf import exp_inplace
 from cooploc._particle_kernels import kernel_matrix, quadratic_row
 
 #: the reference is glibc's expf, which exp_inplace reproduces bit for bit
-GLIBC = platform.system() == "Linux" and platform.machine() == "x86_64" and (
-    platform.libc_ver()[0] == "glibc" and tuple(int(x) for x in platform.libc_ver()[1].split(".")[:2]) >= (2, 27))
+_LIBC, _LIBC_VERSION = platform.libc_ver()
+GLIBC = platform.system() == "Linux" and platform.machine() == "x86_64" and _LIBC == "glibc" and (
+    tuple(int(x) for x in _LIBC_VERSION.split(".")[:2]) >= (2, 27))
 
 
 @numba.njit(cache=False)
@@ -31,23 +32,19 @@ def _libm_exp(x: np.ndarray, out: np.ndarray) -> None:
         out[i] = np.exp(x[i])
 
 
-@numba.njit(parallel=True, fastmath=True, cache=False)
+@numba.njit(fastmath=True, cache=False)
 def _previous_kernel_matrix(u, vt, out, shift):  # type: ignore[no-untyped-def]
-    """kernel_matrix as it was: one scalar np.exp (the C library's expf) per pair."""
-    B, Nj = u.shape[0], u.shape[1]
-    Nl = vt.shape[2]
-    half = np.float32(0.5)
-    for bj in numba.prange(B * Nj):
-        b = bj // Nj
-        j = bj - b * Nj
-        row = out[b, j]
-        quadratic_row(u, vt, b, j, row)
-        q_min = row[0]
-        for l in range(Nl):
-            q_min = min(q_min, row[l])
-        shift[b, j] = -0.5 * q_min
-        for l in range(Nl):
-            row[l] = np.exp(-half * (row[l] - q_min))
+    """kernel_matrix as it was: per row, a running minimum and one scalar exp (the C
+    library's expf) per pair, here over whole rows."""
+    for b in range(u.shape[0]):
+        for j in range(u.shape[1]):
+            q = out[b, j]
+            quadratic_row(u, vt, b, j, q)
+            lowest = q[0]
+            for value in q:
+                lowest = min(lowest, value)
+            shift[b, j] = -0.5 * lowest
+            q[:] = np.exp(np.float32(-0.5) * (q - lowest))
 
 
 def _assert_same(ours: np.ndarray, reference: np.ndarray) -> None:

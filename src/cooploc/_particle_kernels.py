@@ -36,6 +36,26 @@ def quadratic_row(u: FloatArray, vt: FloatArray, b: int, j: int, row: np.ndarray
             row[l] += t * t
 
 
+@numba.njit(fastmath=True, cache=True, inline="always")
+def row_min(row: np.ndarray) -> float:
+    """min_l row[l], in 16 running minima: a single running minimum is a chain of
+    dependent compares that does not vectorize (the minimum is the same in any order)."""
+    n = row.size
+    acc = np.empty(16, dtype=row.dtype)
+    acc[:] = row[0]
+    top = n - n % 16
+    for l in range(0, top, 16):
+        for i in range(16):
+            v = row[l + i]
+            acc[i] = v if v < acc[i] else acc[i]
+    m = row[0]
+    for i in range(16):
+        m = acc[i] if acc[i] < m else m
+    for l in range(top, n):
+        m = row[l] if row[l] < m else m
+    return m
+
+
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def kernel_matrix(u: np.ndarray, vt: np.ndarray, out: np.ndarray, shift: FloatArray) -> None:
     """out[b, j, l] = exp(−½ (q_bjl − min_l q_bjl)) in float32; shift[b, j] = −½ min_l q_bjl."""
@@ -47,9 +67,7 @@ def kernel_matrix(u: np.ndarray, vt: np.ndarray, out: np.ndarray, shift: FloatAr
         j = bj - b * Nj
         row = out[b, j]
         quadratic_row(u, vt, b, j, row)
-        q_min = row[0]
-        for l in range(Nl):
-            q_min = min(q_min, row[l])
+        q_min = row_min(row)
         shift[b, j] = -0.5 * q_min
         for l in range(Nl):
             row[l] = -half * (row[l] - q_min)
@@ -67,9 +85,7 @@ def kernel_sum(u: FloatArray, vt: FloatArray, log_norm: FloatArray, w: FloatArra
         j = bj - b * Nj
         row = np.empty(Nl)
         quadratic_row(u, vt, b, j, row)
-        q_min = row[0]
-        for l in range(Nl):
-            q_min = min(q_min, row[l])
+        q_min = row_min(row)
         acc = 0.0
         for l in range(Nl):
             acc += w[b, l] * np.exp(-0.5 * (row[l] - q_min))

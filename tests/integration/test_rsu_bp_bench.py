@@ -19,6 +19,7 @@ def test_rsu_bp_benchmark_writes_json(tmp_path: Path) -> None:
     for entry in data["rsu_bp"].values():
         assert entry["steps_per_second"] > 0 and entry["peak_memory_bytes_20_steps"] > 0
         assert set(entry["vehicle_rmse"]) == {"rsu-bp", "oracle-kf", "gnss-kf"}
+        assert entry["gnss_kf_steps_per_second"] > 0 and entry["gnss_kf_steps_per_rsu_bp_step"] > 0
     kernel = data["pair_kernel"]
     for key in ("numba_stored_float32_pairs_per_second", "numba_fused_sum_float64_pairs_per_second",
                 "numpy_broadcast_float64_pairs_per_second"):

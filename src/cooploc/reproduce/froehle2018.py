@@ -311,10 +311,12 @@ def _gnss_sentence(data: dict[str, Any], steady: Claim) -> str:
             f"(r = {p['noise_density']}, ΔT = {p['dt']} s, σ² = {p['gnss_variances'][1]:g} m²): "
             f"the steady-state Kalman filter gives {analytic:.2f} m")
     if steady.verdict.reproduced:
-        text += f", and our simulation agrees with that ({steady.verdict.ours}; {steady.verdict.test})."
+        agreement = "our simulation agrees with that"
+    elif "inconclusive" in steady.verdict.test:
+        agreement = "these runs cannot tell whether our simulation agrees with that"
     else:
-        text += (f", and our simulation does not agree with that ({steady.verdict.ours}; "
-                 f"{steady.verdict.test}).")
+        agreement = "our simulation does not agree with that"
+    text += f", and {agreement} ({steady.verdict.ours}; {steady.verdict.test})."
     return text + " The paper's figures give no other numbers in its text."
 
 

@@ -174,6 +174,7 @@ class RsuBP:
         self.vehicles = Particles(np.zeros((0, N, self.dx)), np.zeros((0, N)))
         self.last_k: int | None = None
         self._kernel_buffer = np.zeros(0, dtype=np.float32)   # the pair kernel's values, reused
+        self._fixed_noise: dict[str, FloatArray] = {}         # Q of state-independent motion noise
         self.p_d = float(setup.detection_probability)
         self.clutter_intensity = 0.0
         if setup.clutter_rate > 0:
@@ -280,8 +281,7 @@ class RsuBP:
         ids, cont = self.vehicle_ids[keep], self.vehicles.take(keep)
         if len(cont) and steps:
             for _ in range(steps):
-                mean = np.einsum("nl,nld->nd", cont.weights, cont.samples)
-                Q = self.setup.vehicle_motion.noise_covariance(self.setup.dt, mean)
+                Q = self._process_noise("vehicle", cont)
                 cont = propagate_linear(cont, self.Fx, Q, self.rng)
         born_ids = np.setdiff1d(present, ids)
         used = np.zeros(born_ids.size, dtype=bool)
@@ -330,6 +330,17 @@ class RsuBP:
         np.add.at(out, s, loglik)
         return out
 
+    def _process_noise(self, kind: str, belief: Particles) -> FloatArray:
+        """Q of one step of the vehicles' or features' motion: at the belief's mean where
+        the model's noise turns with the state, else the model's fixed Q, computed once."""
+        motion = getattr(self.setup, f"{kind}_motion")
+        if motion.state_dependent_noise:
+            return motion.noise_covariance(self.setup.dt, np.einsum("nl,nld->nd", belief.weights,
+                                                                    belief.samples))
+        if kind not in self._fixed_noise:
+            self._fixed_noise[kind] = motion.noise_covariance(self.setup.dt)
+        return self._fixed_noise[kind]
+
     # ------------------------------------------------------------ features
 
     def _features_predict(self, frame: Frame, steps: int | None) -> None:
@@ -344,9 +355,8 @@ class RsuBP:
                 self.feature_gauss = predict_steps(self.feature_gauss, motion, dt, steps)
             return
         for _ in range(steps or 0):
-            mean = np.einsum("nl,nld->nd", self.features.weights, self.features.samples)
             self.features = propagate_linear(self.features, self.Ff,
-                                             motion.noise_covariance(dt, mean), self.rng)
+                                             self._process_noise("feature", self.features), self.rng)
 
     def _features_init(self, v2f: Batch, log_phi_chi: FloatArray) -> None:
         """Draw feature particles around the V2F detections (see module docstring)."""
