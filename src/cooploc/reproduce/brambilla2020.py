@@ -14,7 +14,7 @@ Compared: `gnss-kf` (the non-cooperative tracking filter), `icp-da-lc` with η_T
 and, as "icp-da-lc η=1", with η_TH = 1, `icp-da-pf` on the road; and two bounds that
 know the association (dashed): `icp` (the paper's "ICP with known DA", the same
 distributed Gaussian BP) and `oracle-kf` (the centralised joint Kalman filter, the
-best any filter can do with these sensors). "icp recursion" is `icp` with the paper's
+best any filter can do with these sensors). "icp-recursion" is `icp` with the paper's
 recursion over steps (eqs. 11–12: `feedback` and `feature_memory` on), run on the road
 and on the crossroad at N_f = 20 to show why the defaults leave it off. The paper
 averages 5000 Monte Carlo runs; the default here is 50 per road point and 20 per
@@ -269,15 +269,18 @@ def _association_panels(points: dict[str, dict[str, Any]]) -> Panels:
 def _ratio_panels(road: dict[str, Any], static: dict[str, Any], moving: dict[str, Any]) -> Panels:
     """RMSE / oracle-kf against d_f, N_f and v_f, one curve per other estimator label."""
     panels = {}
+    # every label in every panel, in one order, so that a label keeps its colour
+    labels = list(dict.fromkeys(label for points in (road, static, moving) for point in points.values()
+                                for label in point["rmse"] if label != BOUND))
     for title, points, parse in (("road: d_f [m]", road, paper_claims.spacing_of),
                                  ("crossroad, static: N_f", static, float),
                                  ("crossroad, N_f = 20: v_f [m/s]", moving, float)):
-        curves: dict[str, tuple[list[float], list[float]]] = {}
+        curves: dict[str, tuple[list[float], list[float]]] = {label: ([], []) for label in labels}
         for key, point in points.items():
             bound = point["rmse"].get(BOUND)
             for label, value in point["rmse"].items():
                 if label != BOUND and bound and value is not None:
-                    xs, ys = curves.setdefault(label, ([], []))
+                    xs, ys = curves[label]
                     xs.append(parse(key))
                     ys.append(value / bound)
         panels[title] = curves

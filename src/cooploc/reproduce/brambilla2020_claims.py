@@ -42,7 +42,7 @@ __all__ = ["ASSOCIATION_TOLERANCE", "ETA_ONE", "NO_BENEFIT", "REACH_TOLERANCE", 
            "spacing_of"]
 
 ETA_ONE = "icp-da-lc η=1"
-RECURSION = "icp recursion"
+RECURSION = "icp-recursion"
 LC, PF, ICP, GNSS = "icp-da-lc", "icp-da-pf", "icp", "gnss-kf"
 PAPER_ASSOCIATION = {0.5: 0.54, 3.0: 0.92}
 ASSOCIATION_TOLERANCE = 0.05
@@ -217,8 +217,8 @@ def recursion_lines(data: dict[str, Any]) -> list[str]:
     (eqs. 11–12) on the same runs — RMSE with a paired interval, and the mean NEES (2 for
     a consistent estimator) — and one sentence chosen from those comparisons."""
     points = {**data["road"], **{f"crossroad N_f = {k}": p for k, p in data["crossroad_features"].items()}}
-    lines = ["| setting | gnss-kf RMSE [m] | icp RMSE [m] | icp recursion RMSE [m] | icp − icp recursion "
-             "(paired, 90 %) | icp NEES | icp recursion NEES |", "|---|---|---|---|---|---|---|"]
+    lines = ["| setting | gnss-kf RMSE [m] | icp RMSE [m] | icp-recursion RMSE [m] | icp − icp-recursion "
+             "(paired, 90 %) | icp NEES | icp-recursion NEES |", "|---|---|---|---|---|---|---|"]
     better = worse = compared = 0
     for key, point in points.items():
         x, y = _pair(point, ICP, RECURSION)
@@ -233,7 +233,7 @@ def recursion_lines(data: dict[str, Any]) -> list[str]:
                  *(format_number(point["nees"].get(n)) for n in (ICP, RECURSION))]
         lines.append("| " + " | ".join(cells) + " |")
     if not compared:
-        return ["`icp recursion` was not run."]
+        return ["`icp-recursion` was not run."]
     lines += ["", f"Of {compared} settings, the default `icp` (each step from the GNSS-only filters and "
               f"uniform feature priors) has the significantly lower vehicle RMSE in {better}, the "
               f"recursion in {worse}, and neither in {compared - better - worse} (paired 90 % intervals "

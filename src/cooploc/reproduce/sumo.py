@@ -289,9 +289,9 @@ def report(data: dict[str, Any]) -> list[str]:
         f"Network: SUMO `{data['network']}`; {data['runs']} run(s), seed {data['seed']}; "
         f"{sp['duration']:.0f} s recorded after {sp['warmup']:.0f} s of warm-up, step {sp['dt']} s; "
         f"intervals of {data['bin_seconds']:.0f} s. "
-        "Estimators: " + ", ".join(compared) + f". `icp` and `{BOUND}` know the true association: "
-        "they are bounds, not methods; ratios are to `oracle-kf`. Verdicts are computed from the "
-        "numbers (`claims.json`); each claim states its test and tolerance.",
+        "Estimators: " + ", ".join(compared) + ". " + _bounds_sentence(compared)
+        + " Verdicts are computed from the numbers (`claims.json`); each claim states its test and "
+        "tolerance.",
     ]
     if data["quick"]:
         lines += ["", f"**Quick mode**: a 3 × 3 generated grid for {QUICK['duration']:.0f} s — the "
@@ -330,6 +330,16 @@ def report(data: dict[str, Any]) -> list[str]:
         "the worst GNSS). See `cooploc.scenarios.sumo`.",
     ]
     return lines
+
+
+def _bounds_sentence(compared: list[str]) -> str:
+    bounds = [f"`{n}`" for n in ("icp", BOUND) if n in compared]
+    if not bounds:
+        return "No known-association bound ran."
+    verb = "knows" if len(bounds) == 1 else "know"
+    text = f"{' and '.join(bounds)} {verb} the true association: bounds, not methods."
+    return text + (f" Ratios are to `{BOUND}`." if BOUND in compared
+                   else f" `{BOUND}` did not run here: the ratio columns are empty.")
 
 
 def _ratio(data: dict[str, Any], name: str, regulation: str) -> str:

@@ -32,7 +32,7 @@ cross-covariances, so carrying the refined vehicle and feature beliefs into the 
 step counts the same V2F geometry again at every step (docs/icp.md, "Why `feedback`
 and `feature_memory` are off by default"). The evidence is computed in every run of
 `cooploc reproduce brambilla2020`: its report's section "The paper's recursion
-(eqs. 11–12)" sets `icp` beside `icp` with both switches on (the "icp recursion"
+(eqs. 11–12)" sets `icp` beside `icp` with both switches on (the "icp-recursion"
 rows) on the same runs of the road (3 spacings) and the crossroad (N_f = 20): vehicle
 RMSE with a paired 90 % interval, and the mean NEES.
 
@@ -137,7 +137,7 @@ class ICPParams(Params):
         cross-covariances, carrying the refined beliefs over counts the same V2F
         geometry again at every step (docs/icp.md). Evidence: `cooploc reproduce
         brambilla2020`, report section "The paper's recursion (eqs. 11–12)" (`icp`
-        with both on, "icp recursion", against the default on the same runs: RMSE
+        with both on, "icp-recursion", against the default on the same runs: RMSE
         with a paired interval, and NEES).
     share_hops : rounds of flooding that spread each feature's new belief from the
         vehicles that sensed it (step 4). 1 reaches their neighbours, which is every
