@@ -80,7 +80,7 @@ class SmePFParams(_SmeParams):
     max_stages : at most this many tempering stages per step.
     """
 
-    n_particles: int = param(2000, ge=2)
+    n_particles: int = param(8000, ge=2)
     proposal: Literal["linearized", "bootstrap"] = "linearized"
     linearization_iterations: int = param(1, ge=1)
     resample_threshold: float = param(0.5, ge=0, le=1)
@@ -146,6 +146,8 @@ class SmePF(_SmeFilter):
         relabelled cloud and the assignment is repeated (the fixed-point iteration of the
         MMOSPA estimate, Crouse, Willett et al. 2011) until no particle changes.
         """
+        from cooploc.estimators.sme._kernels import best_permutations   # numba, on first use
+
         n = self.ids.size
         if not self.params.relabel or n < 2 or n > _MAX_EXHAUSTIVE:
             return
@@ -155,9 +157,8 @@ class SmePF(_SmeFilter):
             if iteration:
                 reference = marginal_moments(self.particles, self.log_w)[0]
             diff = self.particles[:, None, :, :] - reference[None, :, None, :]     # (P, N_ref, N, dx)
-            cost = (diff**2).sum(-1)                                                 # (P, i, j)
-            total = cost[:, np.arange(n)[None, :], self._perms].sum(-1)              # (P, n!)
-            best = self._perms[np.argmin(total, axis=1)]                             # (P, N)
+            cost = np.ascontiguousarray((diff**2).sum(-1))                           # (P, i, j)
+            best = self._perms[best_permutations(cost, self._perms)]                 # (P, N)
             moved = (best != np.arange(n)).any(axis=1)
             if not moved.any():
                 break

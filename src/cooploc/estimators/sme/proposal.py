@@ -126,7 +126,7 @@ def linearized_proposal(prior_mean: FloatArray, prior_cov: FloatArray, log_w: Fl
         Sigma0[n * dx:(n + 1) * dx, n * dx:(n + 1) * dx] = prior_cov[n]
     m = w @ mu
     centred = mu - m
-    Pcov = symmetrize(np.einsum("p,pi,pj->ij", w, centred, centred) + Sigma0)
+    Pcov = symmetrize((centred * w[:, None]).T @ centred + Sigma0)
 
     def positions(chi: FloatArray) -> FloatArray:
         return chi.reshape(-1, N, dx)[:, :, position]
