@@ -203,8 +203,8 @@ def test_topology_gain_is_small_and_vanishes_with_a_useless_radar(runs: dict) ->
     gain = topology_gain(rec)
     # one scalar per step against 2N GPS coordinates: a few per cent, never a loss
     assert 0.0 < gain.gain < 0.1 and gain.kf_topology < gain.kf
-    blind = dataclasses.replace(rec.setup, sensors={**rec.setup.sensors,
-                                                    "radar": InfrastructureRadar(default_cov=1e6 * np.eye(2))})
+    radar = InfrastructureRadar(default_cov=1e6 * np.eye(2))
+    blind = dataclasses.replace(rec.setup, sensors={**rec.setup.sensors, "radar": radar})
     useless = topology_gain(dataclasses.replace(rec, setup=blind))
     np.testing.assert_allclose(useless.kf_topology, useless.kf, rtol=1e-4)   # T's variance ~ 1e6 m²
 
