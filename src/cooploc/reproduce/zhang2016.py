@@ -135,8 +135,14 @@ def _fig3(data: dict[str, Any], runs: int, path: Path) -> None:
         values = [data[s]["per_run_total"].get(name) or [np.nan] for s in SCENARIOS]
         means = [np.mean(v) for v in values]
         ses = [np.std(v, ddof=1) / np.sqrt(len(v)) if len(v) > 1 else 0.0 for v in values]
-        ax.bar(x + (i - (len(names) - 1) / 2) * width, means, width, yerr=ses, label=name, capsize=3,
+        positions = x + (i - (len(names) - 1) / 2) * width
+        ax.bar(positions, means, width, yerr=ses, label=name, capsize=3,
                hatch="//" if name == BOUND else None)
+        for j, s in enumerate(SCENARIOS):   # the ratio to the bound above each bar
+            bound = data[s]["per_run_total"].get(BOUND)
+            if bound and name != BOUND and np.isfinite(means[j]):
+                ax.text(positions[j], means[j] * 1.12, f"×{means[j] / np.mean(bound):.2g}", ha="center",
+                        va="bottom", fontsize=5, rotation=90)
     for j, s in enumerate(SCENARIOS):   # what T can add at most: the KF with T, known association
         limit = data[s]["information"]["kf_topology"]
         ax.hlines(limit, j - 0.45, j + 0.45, colors="k", linestyles="dashed",
