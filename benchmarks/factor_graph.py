@@ -34,7 +34,10 @@ shared, CPU time is the steadier number):
    filled — excluded from every timing above (`compile_kernels()` runs first).
 
 The JSON also records the environment of `common.environment()` (versions, platform,
-CPU count, load average at start and end).
+CPU count, load average at start and end). Everything runs with one BLAS thread
+(`backends.limit_threads(1)`), as the experiment runner's workers do: on a shared
+machine OpenBLAS threads spinning for a core slow a banded Cholesky by orders of
+magnitude.
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when l
 from common import environment, new_estimator, peak_memory, recording, write_json
 
 from cooploc import least_squares
+from cooploc.backends import limit_threads
 from cooploc.estimators import factor_graph as fg
 from cooploc.estimators.factor_graph import gtsam_backend
 from cooploc.experiment import estimate
@@ -235,6 +239,11 @@ def jit_seconds() -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
+    with limit_threads(1):
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny sizes (checks the script)")
     parser.add_argument("--repeats", type=int, default=None)
