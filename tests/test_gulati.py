@@ -217,3 +217,61 @@ def test_long_run_stays_bounded(seed: int) -> None:
         err = np.array([np.abs(e.vehicles.mean[:, :2] - s[:, :2]).max()
                         for e, s in zip(out, rec.truth.vehicle_states, strict=True)])
         assert err[500:].max() < 20.0  # 20 m ≈ 10 σ of the worst per-axis error
+
+
+# ----------------------------------------------------------------------------
+# the report's claims and sentences come from the numbers (fabricated here)
+# ----------------------------------------------------------------------------
+
+
+def _fabricated(rng: np.random.Generator, gain: float, speedup: float) -> dict:
+    """data.json of `reproduce gulati` for N = 2 with the new factor `gain` × the old's
+    error and `speedup` × its solve time (100 runs)."""
+    from cooploc.reproduce.gulati import GRAPHS
+
+    runs = 100
+    old = 7.0 + rng.normal(0, 0.5, runs)
+    new = gain * old + rng.normal(0, 0.05, runs)
+    kalman = 8.4 + rng.normal(0, 0.5, runs)
+
+    def entry(per_run: np.ndarray) -> dict:
+        return {"total_rmse": float(per_run.mean()), "total_rmse_std_error": 0.05,
+                "per_run_total_rmse": per_run.tolist(), "vehicle_rmse_all": float(per_run.mean() / 1.4),
+                "nees": 2.0, "seconds_per_run": 0.1, "ratio_to_kalman": 0.8, "ratio_to_bound": 3.0}
+
+    def graph(scale: float, seconds: float, iterations: float, nees: float) -> dict:
+        return {"solve_seconds": (seconds * (1 + 0.01 * rng.random(runs))).tolist(),
+                "iterations": [iterations] * runs,
+                "claimed_variance": (scale * (1 + 0.01 * rng.random(runs))).tolist(),
+                "achieved_variance": (scale * nees / 2 * (1 + 0.01 * rng.random(runs))).tolist(),
+                "nees": (nees + 0.01 * rng.random(runs)).tolist()}
+
+    study = {label: graph(1.5, 0.01, 3, 2.0) for label in GRAPHS}
+    study["old"] = graph(1.2, 0.01, 4, 2.0)
+    study["new"] = graph(1.2 * gain**2, 0.01 * speedup, 2 if speedup < 1 else 5, 2.0 if gain < 1 else 3.0)
+    study["oracle-pose-smoother"] = {k: study["old"][k]
+                                     for k in ("claimed_variance", "achieved_variance", "nees")}
+    return {"runs": runs, "seed": 0, "quick": False,
+            "compared": ["fg-topology-new", "fg-topology-old", "gnss-kf", "oracle-pose-smoother"],
+            "table": {"2": {"fg-topology-new": entry(new), "fg-topology-old": entry(old),
+                            "gnss-kf": entry(kalman), "oracle-pose-smoother": entry(old / 3)}},
+            "study": {"2": {"runs": runs, "repeats": 3, **study}}, "kernel_first_call_seconds": 1.0,
+            "noise": {"odometry_variance": 1.0, "radar_variance": 0.1, "gnss_variance": 9.0},
+            "paper_table_i": {"2": {"fg-topology-new": 5.211, "fg-topology-old": 7.187, "gnss-kf": 8.423}},
+            "paper_table_ii": {"2": {"fg-topology-new": 0.153, "fg-topology-old": 0.692, "gnss-kf": 0.01}}}
+
+
+def test_claims_follow_the_numbers(rng: np.random.Generator) -> None:
+    from cooploc.reproduce.gulati import EXPERIMENT, claims
+
+    as_paper = {c.statement: c.outcome for c in claims(_fabricated(rng, gain=0.725, speedup=0.25))}
+    assert set(as_paper.values()) == {"reproduced"}, as_paper
+    reversed_ = {c.statement: c.outcome for c in claims(_fabricated(rng, gain=1.03, speedup=1.1))}
+    kalman = "Table I, N = 2: the new factor improves over the Kalman filter"
+    assert reversed_.pop(kalman) == "reproduced"   # 1.03 × the old factor is still below the KF
+    assert set(reversed_.values()) == {"not reproduced"}, reversed_
+    report = EXPERIMENT.markdown(_fabricated(rng, gain=1.03, speedup=1.1))
+    assert "does not achieve a smaller one" in report and "its NEES is higher than the old" in report
+    report = EXPERIMENT.markdown(_fabricated(rng, gain=0.725, speedup=0.25))
+    assert "achieves a smaller one" in report and "its NEES is not higher than the old" in report
+    assert "3.50 times as variable" in report  # 1 + σ_o² / (4 σ_r²) from the data's noise

@@ -28,9 +28,10 @@ from cooploc.types import Frame, Recording
 # a linear problem solved two ways (Kalman recursion vs one dense solve) agrees to
 # round-off: κ(normal matrix) ≤ ~1e6 here (GPS 9 m² vs radar 0.1 m², prior 2500 m²)
 LINEAR_ATOL = 1e-8
-# GTSAM's LM and ours stop at relative cost changes ≤ 1e-12 of a well-conditioned
-# problem; the minimisers then agree far below the mm
-GTSAM_X_ATOL, GTSAM_COV_RTOL = 1e-6, 1e-6
+# ours stops when the cost falls by < 1e-9 (its absolute tolerance), GTSAM's at 1e-14:
+# the step left over is ≲ 1e-5 m (seen: 1.1e-6 m); the covariances (taken at the two
+# minimisers) agree to ~1e-8 of their scale (seen: 3e-9)
+GTSAM_X_ATOL, GTSAM_COV_RTOL = 1e-5, 1e-6
 
 
 def _recording(preset: str, seed: object, **overrides: object) -> Recording:
@@ -224,12 +225,13 @@ def test_smoother_with_unknown_pose_is_gtsam(seed: int) -> None:
     pytest.importorskip("gtsam")
     rec = _recording("gulati-2v", [seed, 4], n_steps=15)
     est, ours = _run("oracle-pose-smoother", rec)
-    f = est.filter
-    x0 = np.concatenate([h.mean for h in f.history])
-    x, cov, pose = gtsam_smoother(rec, f.poses.centres[0], f.pose_prior_cov, x0, f.mean[:3])
+    x0 = np.concatenate([h.mean for h in est.chains.history])
+    start = est.initial_poses[100]   # the pose's initial guess, and its diffuse prior's centre
+    x, cov, pose = gtsam_smoother(rec, start, est.pose_prior_cov, x0, start)
     for k, e in enumerate(ours):
         np.testing.assert_allclose(e.vehicles.mean, x[k], atol=GTSAM_X_ATOL, rtol=0)
-        np.testing.assert_allclose(e.vehicles.cov, cov[k], rtol=GTSAM_COV_RTOL, atol=1e-12)
+        # relative to the block's scale: near-zero cross terms follow the linearisation point
+        np.testing.assert_allclose(e.vehicles.cov, cov[k], rtol=0, atol=GTSAM_COV_RTOL * np.abs(cov[k]).max())
     smoothed_pose, _ = est.smoothed_poses[100]
     np.testing.assert_allclose(smoothed_pose[:2], pose[:2], atol=GTSAM_X_ATOL, rtol=0)
     np.testing.assert_allclose(np.angle(np.exp(1j * (smoothed_pose[2] - pose[2]))), 0.0, atol=GTSAM_X_ATOL)
@@ -310,15 +312,20 @@ def test_a_vehicle_without_rows_is_predicted_and_the_others_estimated(seed: int)
     assert est.smoothed_poses[100][1][2, 2] < 1e-3  # the two others fix the pose
 
 
-def test_a_radar_seeing_one_vehicle_never_fixes_its_pose(seed: int) -> None:
-    # one vehicle cannot fix a yaw: the radar never joins the filter, which is gnss-kf
+def test_a_radar_seeing_one_vehicle(seed: int) -> None:
+    # one vehicle cannot fix a yaw in one frame: the radar never joins the filter, which is
+    # then gnss-kf; over the run its track fixes the pose for the smoother
     rec = _recording("gulati-2v", [seed, 8], n_vehicles=1, n_steps=20)
-    est, _ = _run("oracle-pose-smoother", rec)
-    assert est.poses() == {} and est.smoothed_poses == {}
-    _, ours = _run("oracle-pose", rec)
+    filt, ours = _run("oracle-pose", rec)
+    assert filt.poses() == {}
     _, kf = _run("gnss-kf", rec)
     for a, b in zip(ours, kf, strict=True):
         np.testing.assert_allclose(a.vehicles.mean, b.vehicles.mean, atol=1e-8, rtol=0)
+    est, _ = _run("oracle-pose-smoother", rec)
+    b, P = est.smoothed_poses[100]
+    db = b - rec.truth.sensor_poses[0]
+    db[2] = np.angle(np.exp(1j * db[2]))
+    assert db @ np.linalg.solve(P, db) < 32.0   # χ²₃ beyond 32 has probability < 1e-6
 
 
 def test_truth_is_read_only_for_the_association(seed: int) -> None:

@@ -48,7 +48,7 @@ __all__ = [
 ]
 
 MAX_PANELS = 6  # more vehicles than this: `shown_ids` picks them, the pooled RMSE is in the report
-BOUND_ESTIMATORS = ("oracle-kf", "icp", "kf-known-da")
+BOUND_ESTIMATORS = ("oracle-kf", "icp", "kf-known-da", "oracle-pose", "oracle-pose-smoother")
 
 
 def shown_ids(ids: Sequence[Any]) -> list[Any]:

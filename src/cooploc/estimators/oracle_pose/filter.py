@@ -38,12 +38,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cooploc.errors import EstimatorError
-from cooploc.estimators.base import birth_beliefs
-from cooploc.estimators.oracle_pose.rows import FrameRows, Rows, radar_model
+from cooploc.estimators.oracle_pose.rows import Chains, FrameRows, Models, Rows, radar_model
 from cooploc.geometry import fit_pose
 from cooploc.types import FloatArray, Frame, IntArray, Setup
 
-__all__ = ["PoseFilter", "StepRecord"]
+__all__ = ["PoseFilter", "PoseState"]
 
 _NO_RADAR = Rows(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0, np.int64))
 
@@ -59,23 +58,6 @@ def _block_diagonal(blocks: list[FloatArray]) -> FloatArray:
         out[at:at + d, at:at + d] = b
         at += d
     return out
-
-
-@dataclass(frozen=True)
-class StepRecord:
-    """What the smoother needs of one step: the frame's rows, its variables and births.
-
-    vars (n,): variable index of each present vehicle (sorted ids); previous (n,): the
-    same vehicle's variable at the step before, −1 where its chain starts (then
-    born_mean (dx,) and born_cov (dx, dx) hold its prior); mean (n, dx): filtered means.
-    """
-
-    rows: FrameRows
-    vars: IntArray
-    previous: IntArray
-    born_mean: FloatArray
-    born_cov: FloatArray
-    mean: FloatArray
 
 
 @dataclass
@@ -102,29 +84,16 @@ class PoseFilter:
     def __init__(self, setup: Setup, name: str, pose_prior_cov: FloatArray,
                  known_poses: dict[int, FloatArray] | None, max_iterations: int, tolerance: float) -> None:
         self.setup, self.name = setup, name
-        dx = setup.vehicle_layout.dim
-        self.dx = dx
-        motion = setup.vehicle_motion
-        self.F = motion.transition_matrix(setup.dt)
-        self.motion = motion
-        sensors = setup.sensors
-        position = np.eye(dx)[list(setup.vehicle_layout.position)]
-
-        def H_of(kind: str) -> FloatArray:
-            model = sensors.get(kind)
-            return position if model is None else model.observation_matrix(dx)
-
-        self.H_gnss, self.H_odometry, self.H_radar = H_of("gnss"), H_of("odometry"), H_of("radar")
+        self.models = Models.of(setup)
+        self.dx = self.models.dim
+        self.chains = Chains(setup)
         self.pose_prior_cov = pose_prior_cov
         self.known = known_poses
         self.max_iterations, self.tolerance = max_iterations, tolerance
         self.poses = PoseState()
         self.ids = np.zeros(0, np.int64)
-        self.vars = np.zeros(0, np.int64)
         self.mean = np.zeros(0)
         self.cov = np.zeros((0, 0))
-        self.n_vars = 0
-        self.history: list[StepRecord] = []
         self.nis = (0.0, 0)
 
     @property
@@ -160,9 +129,7 @@ class PoseFilter:
         mean = self.mean[v:].reshape(n, dx)
         blocks = self.cov[v:, v:].reshape(n, dx, n, dx)
         cov = blocks[np.arange(n), :, np.arange(n), :]
-        record = self.history[-1]
-        self.history[-1] = StepRecord(record.rows, record.vars, record.previous, record.born_mean,
-                                      record.born_cov, mean.copy())
+        self.chains.set_mean(mean)
         return mean, cov
 
     def _predict(self, frame: Frame, rows: FrameRows) -> IntArray:
@@ -172,41 +139,33 @@ class PoseFilter:
         n, dx, P = new.size, self.dx, 3 * self.n_poses
         cont = np.isin(new, old)
         old_at = np.searchsorted(old, new[cont])
+        record = self.chains.add(frame, rows)
         odometry_vehicles = np.unique(rows.odometry.at)
         cloned = odometry_vehicles[cont[odometry_vehicles]] if odometry_vehicles.size else odometry_vehicles
         clone_of = np.full(n, -1, np.int64)
         clone_of[cloned] = np.arange(cloned.size)
-        do = self.H_odometry.shape[0]
+        H_o, F = self.models.H_odometry, self.models.F
+        do = H_o.shape[0]
         D = P + dx * n + do * cloned.size
         # θ_k = M θ_{k−1} (+ births): poses kept, continuing vehicles moved by F, clones H x_{k−1}
         M = np.zeros((D, self.mean.size))
         M[:P, :P] = np.eye(P)
         j = np.flatnonzero(cont)
         for jj, i in zip(j, old_at, strict=True):
-            M[P + dx * jj:P + dx * (jj + 1), P + dx * i:P + dx * (i + 1)] = self.F
+            M[P + dx * jj:P + dx * (jj + 1), P + dx * i:P + dx * (i + 1)] = F
         for c, jj in enumerate(cloned):
             i = old_at[np.searchsorted(j, jj)]
-            M[P + dx * n + do * c:P + dx * n + do * (c + 1), P + dx * i:P + dx * (i + 1)] = self.H_odometry
+            M[P + dx * n + do * c:P + dx * n + do * (c + 1), P + dx * i:P + dx * (i + 1)] = H_o
         mean = M @ self.mean
         cov = M @ self.cov @ M.T
         if j.size:
-            Q = self.motion.noise_covariance(self.setup.dt, mean[P:P + dx * n].reshape(n, dx)[j])
+            Q = self.models.motion.noise_covariance(self.models.dt, mean[P:P + dx * n].reshape(n, dx)[j])
             Q = np.broadcast_to(Q, (j.size, dx, dx))
             for q, jj in zip(Q, j, strict=True):
                 cov[P + dx * jj:P + dx * (jj + 1), P + dx * jj:P + dx * (jj + 1)] += q
-        born = np.flatnonzero(~cont)
-        born_mean, born_cov = np.zeros((n, dx)), np.zeros((n, dx, dx))
-        if born.size:
-            b = birth_beliefs(self.setup, new[born], frame)
-            born_mean[born], born_cov[born] = b.mean, b.cov
-            for k, jj in enumerate(born):
-                s = slice(P + dx * jj, P + dx * (jj + 1))
-                mean[s], cov[s, s] = b.mean[k], b.cov[k]
-        previous = np.full(n, -1, np.int64)
-        previous[j] = self.vars[old_at]
-        self.vars = self.n_vars + np.arange(n)
-        self.n_vars += n
-        self.history.append(StepRecord(rows, self.vars, previous, born_mean, born_cov, np.zeros((n, dx))))
+        for jj in np.flatnonzero(~cont):
+            s = slice(P + dx * jj, P + dx * (jj + 1))
+            mean[s], cov[s, s] = record.born_mean[jj], record.born_cov[jj]
         self.ids, self.mean, self.cov = new, mean, 0.5 * (cov + cov.T)
         return clone_of
 
@@ -233,20 +192,20 @@ class PoseFilter:
         if linear_rows:
             g = rows.gnss
             if len(g):
-                Hg = np.broadcast_to(self.H_gnss, (len(g), *self.H_gnss.shape))
-                add(g.z, x[vehicle_cols(g.at)] @ self.H_gnss.T, [(vehicle_cols(g.at), Hg)], g.cov)
+                Hg = np.broadcast_to(self.models.H_gnss, (len(g), *self.models.H_gnss.shape))
+                add(g.z, x[vehicle_cols(g.at)] @ self.models.H_gnss.T, [(vehicle_cols(g.at), Hg)], g.cov)
             o = rows.odometry
             keep = clone_of[o.at] >= 0 if len(o) else np.zeros(0, bool)
             if keep.any():
                 o = o.take(np.flatnonzero(keep))
-                Ho = np.broadcast_to(self.H_odometry, (len(o), *self.H_odometry.shape))
-                do = self.H_odometry.shape[0]
+                Ho = np.broadcast_to(self.models.H_odometry, (len(o), *self.models.H_odometry.shape))
+                do = self.models.H_odometry.shape[0]
                 clone_cols = P + dx * n + do * clone_of[o.at][:, None] + np.arange(do)
-                h = x[vehicle_cols(o.at)] @ self.H_odometry.T - x[clone_cols]
+                h = x[vehicle_cols(o.at)] @ self.models.H_odometry.T - x[clone_cols]
                 add(o.z, h, [(vehicle_cols(o.at), Ho),
                              (clone_cols, np.broadcast_to(-np.eye(do), (len(o), do, do)))], o.cov)
         if len(radar):
-            Hr = self.H_radar
+            Hr = self.models.H_radar
             p = x[vehicle_cols(radar.at)] @ Hr.T
             if self.known is not None:
                 use = np.isin(radar.sensor, list(self.known))
@@ -308,7 +267,7 @@ class PoseFilter:
             r = radar.take(np.flatnonzero(radar.sensor == sensor))
             if np.unique(r.at).size < 2 or np.ptp(r.z, axis=0).max() <= 0:
                 continue  # one vehicle cannot fix a yaw
-            p = self.mean[P + dx * r.at[:, None] + np.arange(dx)] @ self.H_radar.T
+            p = self.mean[P + dx * r.at[:, None] + np.arange(dx)] @ self.models.H_radar.T
             centre = fit_pose(p, r.z)
             self._insert_pose(centre)
             self.poses.ids.append(sensor)

@@ -1,4 +1,4 @@
-r"""The rows of one frame that `oracle-pose` fuses, each tied to its true vehicle, and the radar model.
+r"""What `oracle-pose` fuses: the rows of a frame tied to their true vehicles, the models, the chains.
 
 Which rows: GNSS rows (identified or anonymous) and radar rows by their true origin
 (`AssociationTruth.origin`; clutter, origin −1, is dropped), odometry rows by their
@@ -13,6 +13,12 @@ of radar s is
 with pose b_s = [t_s; θ_s] and H the sensor's position selection. Its Jacobians:
 ∂h/∂x = Rᵀ H, ∂h/∂t = −Rᵀ, ∂h/∂θ = (dRᵀ/dθ)(H x − t) = [[−sin θ, cos θ], [−cos θ,
 −sin θ]] (H x − t). Everything is vectorised over rows.
+
+`Models` holds the setup's F, Q and the observation matrices; `Chains` numbers one
+variable per present vehicle and step (step by step, ids sorted within a step), links
+each to the same vehicle's variable at the previous step and records the prior of
+every chain's first variable (`base.birth_beliefs`) — the bookkeeping the filter and
+the smoother share.
 """
 
 from __future__ import annotations
@@ -22,10 +28,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cooploc.estimators.base import birth_beliefs
 from cooploc.geometry import rotation
-from cooploc.types import Batch, FloatArray, Frame, IntArray
+from cooploc.types import Batch, FloatArray, Frame, IntArray, MotionModel, Setup
 
-__all__ = ["FrameRows", "Rows", "radar_model"]
+__all__ = ["Chains", "FrameRows", "Models", "Rows", "StepRecord", "radar_model"]
 
 
 @dataclass(frozen=True)
@@ -86,3 +93,81 @@ def radar_model(pose: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray
     c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
     dtheta = np.stack([-s * d[:, 0] + c * d[:, 1], -c * d[:, 0] - s * d[:, 1]], axis=-1)
     return h, Rt, np.concatenate([-Rt, dtheta[:, :, None]], axis=2)
+
+
+@dataclass(frozen=True)
+class Models:
+    """The setup's motion model (F, and `motion` for Q) and the observation matrices H of
+    the GNSS, odometry and radar rows (position selection where a sensor is absent)."""
+
+    dim: int
+    motion: MotionModel
+    dt: float
+    F: FloatArray
+    H_gnss: FloatArray
+    H_odometry: FloatArray
+    H_radar: FloatArray
+
+    @classmethod
+    def of(cls, setup: Setup) -> Models:
+        dx = setup.vehicle_layout.dim
+        position = np.eye(dx)[list(setup.vehicle_layout.position)]
+
+        def H_of(kind: str) -> FloatArray:
+            model = setup.sensors.get(kind)
+            return position if model is None else model.observation_matrix(dx)
+
+        motion = setup.vehicle_motion
+        return cls(dx, motion, setup.dt, motion.transition_matrix(setup.dt), H_of("gnss"),
+                   H_of("odometry"), H_of("radar"))
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One step of the chains: the frame's rows, its variables and the chains' starts.
+
+    vars (n,): variable of each present vehicle (sorted ids); previous (n,): the same
+    vehicle's variable at the step before, −1 where its chain starts (then born_mean
+    (dx,) and born_cov (dx, dx) hold its prior); mean (n, dx): the estimate at this step
+    (the smoother's initial guess).
+    """
+
+    rows: FrameRows
+    vars: IntArray
+    previous: IntArray
+    born_mean: FloatArray
+    born_cov: FloatArray
+    mean: FloatArray
+
+
+class Chains:
+    """Variables numbered step by step, linked vehicle by vehicle (module docstring)."""
+
+    def __init__(self, setup: Setup) -> None:
+        self.setup = setup
+        self.ids = np.zeros(0, np.int64)
+        self.vars = np.zeros(0, np.int64)
+        self.n_vars = 0
+        self.history: list[StepRecord] = []
+
+    def add(self, frame: Frame, rows: FrameRows) -> StepRecord:
+        """Number the frame's variables; its record (mean zero until `set_mean`)."""
+        new, dx = rows.ids, self.setup.vehicle_layout.dim
+        n = new.size
+        cont = np.isin(new, self.ids)
+        previous = np.full(n, -1, np.int64)
+        previous[cont] = self.vars[np.searchsorted(self.ids, new[cont])]
+        born_mean, born_cov = np.zeros((n, dx)), np.zeros((n, dx, dx))
+        if (~cont).any():
+            b = birth_beliefs(self.setup, new[~cont], frame)
+            born_mean[~cont], born_cov[~cont] = b.mean, b.cov
+        self.ids, self.vars = new, self.n_vars + np.arange(n)
+        self.n_vars += n
+        record = StepRecord(rows, self.vars, previous, born_mean, born_cov, np.zeros((n, dx)))
+        self.history.append(record)
+        return record
+
+    def set_mean(self, mean: FloatArray) -> None:
+        """Store the estimate (n, dx) of the last step."""
+        r = self.history[-1]
+        self.history[-1] = StepRecord(r.rows, r.vars, r.previous, r.born_mean, r.born_cov, np.array(mean))

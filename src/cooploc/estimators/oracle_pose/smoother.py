@@ -23,20 +23,21 @@ it can be whitened. Cost: O(T n dx u²) per iteration for T steps and bandwidth 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cooploc.estimators.oracle_pose.filter import PoseFilter
-from cooploc.estimators.oracle_pose.rows import radar_model
+from cooploc.estimators.oracle_pose.rows import Models, StepRecord, radar_model
+from cooploc.geometry import fit_pose
 from cooploc.least_squares import LMResult, solve_lm, solve_lm_bordered, whitener
 from cooploc.types import FloatArray, IntArray
 
 if TYPE_CHECKING:
     import scipy.sparse as sp
 
-__all__ = ["PoseSmoother"]
+__all__ = ["PoseSmoother", "initial_poses"]
 
 _Q_JITTER = 1e-9
 
@@ -51,18 +52,51 @@ class _Linear:
     W: FloatArray
 
 
-class PoseSmoother:
-    """The batch problem of the module docstring built from a `PoseFilter`'s history."""
+def initial_poses(history: Sequence[StepRecord], models: Models) -> dict[int, FloatArray]:
+    """Radar id → the rigid fit (`geometry.fit_pose`) of all its rows to the positions of
+    the initial guess (each record's mean), for radars whose rows are not all one point."""
+    local: dict[int, list[FloatArray]] = {}
+    world: dict[int, list[FloatArray]] = {}
+    for h in history:
+        d = h.rows.radar
+        p = h.mean[d.at] @ models.H_radar.T
+        for sensor in np.unique(d.sensor):
+            rows = d.sensor == sensor
+            local.setdefault(int(sensor), []).append(d.z[rows])
+            world.setdefault(int(sensor), []).append(p[rows])
+    out = {}
+    for sensor, parts in sorted(local.items()):
+        z = np.concatenate(parts)
+        if z.shape[0] >= 2 and np.ptp(z, axis=0).max() > 0:
+            out[sensor] = fit_pose(np.concatenate(world[sensor]), z)
+    return out
 
-    def __init__(self, filt: PoseFilter) -> None:
-        dx = filt.dx
-        self.dx, self.n_vars = dx, filt.n_vars
-        self.known = filt.known
-        history = filt.history
-        self.x0 = (np.concatenate([h.mean for h in history]) if history else np.zeros((0, dx)))
-        self.b0 = filt.mean[:3 * filt.n_poses].copy()
-        self.pose_ids = list(filt.poses.ids)
-        Q = filt.motion.noise_covariance(filt.setup.dt)
+
+class PoseSmoother:
+    """The batch problem of the module docstring over the steps of `history`.
+
+    Parameters
+    ----------
+    history : the chains' records (rows, variables, chain starts, initial guess).
+    models : F, Q and the observation matrices.
+    poses : radar id → initial pose, for the radars whose pose is estimated.
+    centres : radar id → centre of its diffuse prior (default: `poses`).
+    pose_prior_cov : (3, 3) that prior's covariance.
+    known : radar id → pose held fixed (then `poses` is ignored), or None.
+    """
+
+    def __init__(self, history: Sequence[StepRecord], models: Models, poses: dict[int, FloatArray],
+                 pose_prior_cov: FloatArray, known: dict[int, FloatArray] | None = None,
+                 centres: dict[int, FloatArray] | None = None) -> None:
+        dx = models.dim
+        self.dx = dx
+        self.n_vars = int(sum(h.vars.size for h in history))
+        self.known = known
+        self.x0 = np.concatenate([h.mean for h in history]) if history else np.zeros((0, dx))
+        self.pose_ids = [] if known is not None else sorted(poses)
+        self.b0 = np.concatenate([poses[s] for s in self.pose_ids]) if self.pose_ids else np.zeros(0)
+        centres = poses if centres is None else centres
+        Q = models.motion.noise_covariance(models.dt)
         I = np.eye(dx)
         prior_v, prior_z, prior_cov = [], [], []
         gnss_v, gnss_z, gnss_cov = [], [], []
@@ -99,7 +133,7 @@ class PoseSmoother:
         def cat(parts: list[np.ndarray], shape: tuple[int, ...]) -> np.ndarray:
             return np.concatenate(parts) if parts else np.zeros(shape)
 
-        Hg, Ho = filt.H_gnss, filt.H_odometry
+        Hg, Ho = models.H_gnss, models.H_odometry
         a, b = cat(motion_a, (0,)).astype(np.int64), cat(motion_b, (0,)).astype(np.int64)
         try:
             W_Q = whitener(np.broadcast_to(Q, (a.size, dx, dx)))
@@ -114,12 +148,12 @@ class PoseSmoother:
         dg, do = Hg.shape[0], Ho.shape[0]
         self.linear = [
             _Linear((pv,), (each(I, pv.size),), cat(prior_z, (0, dx)), whitener(cat(prior_cov, (0, dx, dx)))),
-            _Linear((a, b), (each(-filt.F, a.size), each(I, a.size)), np.zeros((a.size, dx)), W_Q),
+            _Linear((a, b), (each(-models.F, a.size), each(I, a.size)), np.zeros((a.size, dx)), W_Q),
             _Linear((gv,), (each(Hg, gv.size),), cat(gnss_z, (0, dg)), whitener(cat(gnss_cov, (0, dg, dg)))),
             _Linear((oa, ob), (each(-Ho, oa.size), each(Ho, ob.size)), cat(odo_z, (0, do)),
                     whitener(cat(odo_cov, (0, do, do)))),
         ]
-        self.H_radar = filt.H_radar
+        self.H_radar = models.H_radar
         self.radar_v = cat(radar_v, (0,)).astype(np.int64)
         sensors = cat(radar_s, (0,)).astype(np.int64)
         self.radar_k = np.array([index.get(int(s), -1) for s in sensors], dtype=np.int64)
@@ -127,8 +161,8 @@ class PoseSmoother:
                            if self.known is not None else None)
         self.radar_z = cat(radar_z, (0, 2))
         self.radar_W = whitener(cat(radar_cov, (0, 2, 2)))
-        self.pose_W = whitener(np.broadcast_to(filt.pose_prior_cov, (len(self.pose_ids), 3, 3)))
-        self.pose_c = np.array(filt.poses.centres).reshape(-1, 3)
+        self.pose_W = whitener(np.broadcast_to(pose_prior_cov, (len(self.pose_ids), 3, 3)))
+        self.pose_c = np.array([centres[s] for s in self.pose_ids]).reshape(-1, 3)
 
     def linearize(self, x: FloatArray, b: FloatArray, jacobian: bool = True
                   ) -> tuple[FloatArray, sp.csr_matrix | None]:
