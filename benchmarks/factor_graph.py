@@ -3,6 +3,7 @@
     python benchmarks/factor_graph.py                 # full: N = 2, 3, 4, 250 steps
     python benchmarks/factor_graph.py --quick         # tiny sizes, to check the script
     python benchmarks/factor_graph.py --out bench.json
+    python benchmarks/factor_graph.py --sections old_vs_new jit   # Table II claim: solver alone, JIT
 
 Measured (best of `--repeats`, wall clock and process CPU time; the machine may be
 shared, CPU time is the steadier number):
@@ -23,9 +24,20 @@ shared, CPU time is the steadier number):
 3. `horizon`: `gtsam_naive` vs `sparse` LM time against the number of steps.
 4. `isam2`: ms per step of fg-isam2 before (naive CustomFactor, relinearise every step)
    and after (scalar CustomFactor, GTSAM's default relinearize_skip = 10).
+5. `old_vs_new` — Gulati's Table II claim (the new factor ≥ 50 % faster) on the solver
+   alone, warm: over `--solve-runs` recordings per N, the LM solve of the old and the new
+   graph (same initial guess) with our banded LM and with GTSAM's LM (scalar
+   CustomFactor, as the paper's C++ GTSAM), best of `--repeats` each; per run the
+   seconds and LM iterations, and the medians of the per-run ratios new / old.
+6. `jit`: the one-off compilation of the solver's numba kernel, in a fresh interpreter
+   with an empty numba cache (`NUMBA_CACHE_DIR` a new folder), and again with that cache
+   filled — excluded from every timing above (`compile_kernels()` runs first).
 
 The JSON also records the environment of `common.environment()` (versions, platform,
-CPU count, load average at start and end).
+CPU count, load average at start and end). Everything runs with one BLAS thread
+(`backends.limit_threads(1)`), as the experiment runner's workers do: on a shared
+machine OpenBLAS threads spinning for a core slow a banded Cholesky by orders of
+magnitude.
 """
 
 from __future__ import annotations
@@ -46,11 +58,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when l
 from common import environment, new_estimator, peak_memory, recording, write_json
 
 from cooploc import least_squares
+from cooploc.backends import limit_threads
 from cooploc.estimators import factor_graph as fg
 from cooploc.estimators.factor_graph import gtsam_backend
 from cooploc.experiment import estimate
 
 ESTIMATORS = ("gnss-kf", "fg-topology-old", "fg-topology-new", "fg-isam2")
+SECTIONS = ("estimators", "batch_solve", "horizon", "isam2", "old_vs_new", "jit")
 
 
 def timed(fn: Callable[[], Any], repeats: int) -> tuple[float, float, Any]:
@@ -173,10 +187,69 @@ def isam2(rec, repeats: int) -> dict[str, Any]:
     return out
 
 
+def gtsam_solve(graph, x0: np.ndarray) -> tuple[float, int]:
+    """GTSAM LM (default parameters) from x0: final cost and iterations."""
+    import gtsam
+
+    params = gtsam.LevenbergMarquardtParams()
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, fg.gtsam_values(x0), params)
+    result = optimizer.optimize()
+    return float(graph.error(result)), int(optimizer.iterations())
+
+
+def old_vs_new(n: int, steps: int, runs: int, repeats: int) -> dict[str, Any]:
+    """Section 5 of the module docstring for N = n."""
+    per_run: dict[str, dict[str, list[float]]] = {}
+    for r in range(runs):
+        rec = recording(f"gulati-{n}v", 100 + r, {"n_steps": steps})
+        for name in ("fg-topology-old", "fg-topology-new"):
+            est = built_graph(name, rec)
+            data, x0 = est.data, np.concatenate(est.initial)
+            problem = fg.GraphProblem.of(data)
+            graph = fg.gtsam_graph(data)
+            wall, cpu, result = timed(partial(fg.solve_lm, problem.linearize, x0), repeats)
+            g_wall, g_cpu, (_, g_iterations) = timed(partial(gtsam_solve, graph, x0), repeats)
+            row = per_run.setdefault(name.removeprefix("fg-topology-"), {})
+            values = {"sparse_cpu_s": cpu, "sparse_wall_s": wall, "sparse_iterations": result.iterations,
+                      "gtsam_cpu_s": g_cpu, "gtsam_wall_s": g_wall, "gtsam_iterations": g_iterations}
+            for key, value in values.items():
+                row.setdefault(key, []).append(float(value))
+    ratios = {f"median_ratio_new_old_{key}": float(np.median(np.asarray(per_run["new"][key])
+                                                           / np.asarray(per_run["old"][key])))
+              for key in ("sparse_cpu_s", "gtsam_cpu_s", "sparse_iterations", "gtsam_iterations")}
+    return {"runs": runs, **ratios, "per_run": per_run}
+
+
+def jit_seconds() -> dict[str, float]:
+    """Section 6: `compile_kernels()` in a fresh interpreter, empty numba cache, then filled."""
+    import os
+    import subprocess
+    import tempfile
+
+    code = ("import time; t = time.perf_counter(); from cooploc import least_squares; "
+            "least_squares.compile_kernels(); print(time.perf_counter() - t)")
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="cooploc-numba-") as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        for key in ("empty_cache_s", "filled_cache_s"):
+            done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                  check=True)
+            out[key] = float(done.stdout.strip().splitlines()[-1])
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
+    with limit_threads(1):
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="tiny sizes (checks the script)")
     parser.add_argument("--repeats", type=int, default=None)
+    parser.add_argument("--solve-runs", type=int, default=None, help="recordings per N of section 5")
+    parser.add_argument("--sections", nargs="*", default=list(SECTIONS), choices=SECTIONS,
+                        help="the sections to run (default: all)")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "factor_graph.json")
     args = parser.parse_args(argv)
     counts = (2,) if args.quick else (2, 3, 4)
@@ -187,22 +260,30 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     result: dict[str, Any] = {
         **environment(),
         "steps": steps, "repeats": repeats, "quick": args.quick,
-        "estimators": {}, "batch_solve": {}, "isam2": {}, "horizon": {},
+        "estimators": {}, "batch_solve": {}, "isam2": {}, "horizon": {}, "old_vs_new": {},
     }
+    result["jit"] = jit_seconds() if "jit" in args.sections else {}
+    solve_runs = args.solve_runs or (2 if args.quick else 20)
     least_squares.compile_kernels()  # numba compile outside the timings
+    wanted = set(args.sections)
     for n in counts:
         rec = recording(f"gulati-{n}v", 0, {"n_steps": steps})
-        rows = {}
-        for name in ESTIMATORS:
-            wall, cpu, _ = timed(partial(run_estimator, name, rec), repeats)
-            rows[name] = {"s_per_run_wall": wall, "s_per_run_cpu": cpu,
-                          "us_per_step_wall": 1e6 * wall / steps, "us_per_step_cpu": 1e6 * cpu / steps,
-                          "steps_per_second": steps / wall,
-                          "peak_bytes": peak_memory(partial(run_estimator, name, rec))}
-        result["estimators"][f"{n}v"] = rows
-        result["batch_solve"][f"{n}v"] = batch_solve(rec, repeats)
-        result["isam2"][f"{n}v"] = isam2(rec, repeats)
-    for T in horizons:
+        if "estimators" in wanted:
+            rows = {}
+            for name in ESTIMATORS:
+                wall, cpu, _ = timed(partial(run_estimator, name, rec), repeats)
+                rows[name] = {"s_per_run_wall": wall, "s_per_run_cpu": cpu,
+                              "us_per_step_wall": 1e6 * wall / steps, "us_per_step_cpu": 1e6 * cpu / steps,
+                              "steps_per_second": steps / wall,
+                              "peak_bytes": peak_memory(partial(run_estimator, name, rec))}
+            result["estimators"][f"{n}v"] = rows
+        if "batch_solve" in wanted:
+            result["batch_solve"][f"{n}v"] = batch_solve(rec, repeats)
+        if "isam2" in wanted:
+            result["isam2"][f"{n}v"] = isam2(rec, repeats)
+        if "old_vs_new" in wanted:
+            result["old_vs_new"][f"{n}v"] = old_vs_new(n, steps, solve_runs, repeats)
+    for T in horizons if "horizon" in wanted else ():
         rec = recording("gulati-2v", 0, {"n_steps": T})
         est = built_graph("fg-topology-new", rec)
         data, x0 = est.data, np.concatenate(est.initial)
@@ -214,7 +295,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             "sparse": _solve_row(partial(sparse_cost, problem, x0), repeats),
         }
     write_json(result, args.out)
-    print(json.dumps({k: result[k] for k in ("batch_solve", "isam2")}, indent=1)[:3000])
+    print(json.dumps({k: result[k] for k in ("batch_solve", "isam2", "jit")}, indent=1)[:3000])
     return result
 
 

@@ -6,13 +6,18 @@
 
 Sections (all on `zhang2016-cv`, seeds fixed, time inside `step` only):
 
-- ``particles``: `sme-pf` total error (eq. 20, after optimal assignment) and ms per step
-  for n_particles in PARTICLES, over `--runs` runs each (mean and standard error).
-  This curve is how the default `n_particles` was chosen.
+- ``particles``: `sme-pf` total error (eq. 20, after optimal assignment), ms per step and
+  steps per second for n_particles in PARTICLES, over `--runs` runs each (mean and
+  standard error), for each proposal (``sme_pf_particles``: the default linearized one;
+  ``sme_pf_particles_bootstrap``: drawing from the motion model), beside `kf-known-da` on
+  the same recordings (its total error, the paired mean difference sme-pf − kf-known-da
+  with its standard error, and its ms per step: the reference the times are relative to).
+  These curves are how the default `n_particles` and `proposal` were chosen.
 - ``gm_phd``: µs per step of `gm-phd` and of Stone Soup's GM-PHD (its
   `PointProcessUpdater`/`GaussianMixtureReducer` pipeline with the same models) on the
   same recording (5 targets); Stone Soup is optional here (skipped if not installed).
-- ``memory``: peak traced memory (tracemalloc, separate pass) of each estimator.
+- ``memory``: peak traced memory (tracemalloc, separate pass) of each estimator, and of
+  `sme-pf` with the bootstrap proposal.
 
 Numbers depend on the machine and its load; the JSON records the environment of
 `common.environment()` (versions, platform, CPU count, load average at start and end).
@@ -33,7 +38,8 @@ from common import environment, new_estimator, recording, run_steps, step_memory
 from cooploc.estimators import get_estimator
 from cooploc.metrics import set_errors
 
-PARTICLES = (250, 500, 1000, 2000, 4000)
+PARTICLES = (500, 1000, 2000, 4000, 8000)
+PROPOSALS = ("linearized", "bootstrap")
 ESTIMATORS = ("sme-pf", "sme-ukf", "gm-phd", "kf-known-da")
 
 
@@ -49,24 +55,39 @@ def _run(name: str, rec, params=None, seed: int = 0) -> tuple[float, float]:
     return float(np.sqrt(np.mean(sq))), spent
 
 
-def particle_curve(runs: int, n_steps: int | None, counts=PARTICLES) -> dict:
+def _se(values: list[float]) -> float | None:
+    return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else None
+
+
+def particle_curve(runs: int, n_steps: int | None, counts=PARTICLES, proposal: str = "linearized") -> dict:
     cls = get_estimator("sme-pf")
-    out = {"n_particles": list(counts), "total_rmse_mean": [], "total_rmse_se": [],
-           "ms_per_step": [], "runs": runs}
+    recordings = [_recording(1000 + r, n_steps) for r in range(runs)]
+    reference = [_run("kf-known-da", rec, seed=r) for r, rec in enumerate(recordings)]
+    kf_totals = [total for total, _ in reference]
+    kf_ms = 1e3 * sum(spent for _, spent in reference) / sum(len(rec.frames) for rec in recordings)
+    out = {"proposal": proposal, "n_particles": list(counts), "total_rmse_mean": [], "total_rmse_se": [],
+           "minus_kf_mean": [], "minus_kf_se": [], "ms_per_step": [], "steps_per_second": [],
+           "ms_per_step_over_kf": [], "runs": runs, "kf_known_da_total_rmse_mean": float(np.mean(kf_totals)),
+           "kf_known_da_ms_per_step": kf_ms}
     for count in counts:
-        params = cls.Params().with_overrides({"n_particles": count})
+        params = cls.Params().with_overrides({"n_particles": count, "proposal": proposal})
         totals, seconds, steps = [], 0.0, 0
-        for r in range(runs):
-            rec = _recording(1000 + r, n_steps)
+        for r, rec in enumerate(recordings):
             total, spent = _run("sme-pf", rec, params, seed=r)
             totals.append(total)
             seconds += spent
             steps += len(rec.frames)
+        difference = list(np.asarray(totals) - np.asarray(kf_totals))
+        ms = 1e3 * seconds / steps
         out["total_rmse_mean"].append(float(np.mean(totals)))
-        out["total_rmse_se"].append(float(np.std(totals, ddof=1) / np.sqrt(runs)) if runs > 1 else None)
-        out["ms_per_step"].append(1e3 * seconds / steps)
-        print(f"sme-pf n_particles={count}: total error {np.mean(totals):.3f} m, "
-              f"{1e3 * seconds / steps:.1f} ms/step", file=sys.stderr)
+        out["total_rmse_se"].append(_se(totals))
+        out["minus_kf_mean"].append(float(np.mean(difference)))
+        out["minus_kf_se"].append(_se(difference))
+        out["ms_per_step"].append(ms)
+        out["steps_per_second"].append(1e3 / ms)
+        out["ms_per_step_over_kf"].append(ms / kf_ms)
+        print(f"sme-pf {proposal} n_particles={count}: total error {np.mean(totals):.3f} m "
+              f"(kf-known-da {np.mean(kf_totals):.3f} m), {ms:.1f} ms/step", file=sys.stderr)
     return out
 
 
@@ -91,10 +112,12 @@ def gm_phd_timing(n_steps: int | None, repeats: int) -> dict:
 def memory(n_steps: int | None) -> dict:
     rec = _recording(3, n_steps)
     out = {}
-    for name in ESTIMATORS:
-        est = new_estimator(name, rec)
+    bootstrap = get_estimator("sme-pf").Params().with_overrides({"proposal": "bootstrap"})
+    runs = [*((n, n, None) for n in ESTIMATORS), ("sme-pf bootstrap", "sme-pf", bootstrap)]
+    for label, name, params in runs:
+        est = new_estimator(name, rec, params)
         est.step(rec.frames[0])  # compile / warm up outside the trace
-        out[name] = step_memory(est, rec.frames[1:])
+        out[label] = step_memory(est, rec.frames[1:])
     return out
 
 
@@ -103,14 +126,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="tiny sizes (checks the script)")
     parser.add_argument("--runs", type=int, default=10, help="runs per particle count")
     parser.add_argument("--only", choices=("particles", "gm_phd", "memory"), default=None)
+    parser.add_argument("--particles", type=int, nargs="*", default=None,
+                        help=f"particle counts of the curve (default {PARTICLES})")
     parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "zhang2016.json")
     args = parser.parse_args(argv)
     n_steps = 12 if args.quick else None
     runs = 2 if args.quick else args.runs
-    counts = (100, 200) if args.quick else PARTICLES
+    counts = (100, 200) if args.quick else tuple(args.particles or PARTICLES)
     data: dict = {**environment(), "quick": args.quick}
     if args.only in (None, "particles"):
-        data["sme_pf_particles"] = particle_curve(runs, n_steps, counts)
+        data["sme_pf_particles"] = particle_curve(runs, n_steps, counts, "linearized")
+        data["sme_pf_particles_bootstrap"] = particle_curve(runs, n_steps, counts, "bootstrap")
     if args.only in (None, "gm_phd"):
         data["gm_phd"] = gm_phd_timing(n_steps, 1 if args.quick else 3)
     if args.only in (None, "memory"):

@@ -23,3 +23,7 @@ def test_factor_graph_benchmark_writes_json(tmp_path: Path) -> None:
         assert row["gtsam_no_topology"]["cost"] < row["sparse"]["cost"]
     assert data["isam2"]["2v"]["after"]["ms_per_step_cpu"] > 0
     assert set(data["horizon"]) == {"20", "40"}
+    row = data["old_vs_new"]["2v"]
+    assert row["runs"] == 2 and row["median_ratio_new_old_sparse_cpu_s"] > 0
+    assert len(row["per_run"]["new"]["gtsam_iterations"]) == 2
+    assert data["jit"]["empty_cache_s"] > 0 and data["jit"]["filled_cache_s"] > 0

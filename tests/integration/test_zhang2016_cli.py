@@ -30,12 +30,13 @@ def test_reproduce_quick(tmp_path):
     result = runner.invoke(app, ["reproduce", "zhang2016", "--quick", "--out", str(out),
                                  "--backend", "serial", "--no-progress"])
     assert result.exit_code == 0, result.output
-    for name in ("fig2_trajectories.png", "fig3_total_error.png", "report.md", "data.json"):
+    for name in ("fig2_trajectories.png", "fig3_total_error.png", "fig4_error_per_step.png", "report.md",
+                 "data.json", "claims.json"):
         assert (out / name).is_file()
     report = (out / "report.md").read_text()
-    assert "SME better than KF" in report and "Quick mode" in report
+    assert "SME better than the Kalman filter" in report and "Quick mode" in report
     data = json.loads((out / "data.json").read_text())
     for scenario in ("zhang2016-cv", "zhang2016-ct2", "zhang2016-ct4"):
         totals = data[scenario]["per_run_total"]
         assert set(totals) >= {"sme-pf", "kf-known-da", "gm-phd", "sme-ukf"}
-        assert all(len(v) == 2 and min(v) > 0 for v in totals.values())
+        assert all(len(v) == 2 and min(v) > 0 for v in totals.values() if v)   # variants: CV only

@@ -100,8 +100,29 @@ class OraclePoseParams(Params):
     absolute_tolerance: float = param(1e-9, gt=0)
 
 
+class _PoseBound:
+    """What the two bounds share: their interface, the origins they read, a frame's rows."""
+
+    Params: ClassVar[type[Params]] = OraclePoseParams
+    needs_truth: ClassVar[bool] = True
+    default_preset: ClassVar[str] = "gulati-2v"
+    required_sensors: ClassVar[tuple[str, ...]] = ("radar",)
+    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
+        "gnss": ("gnss-position", "anonymous-position"), "odometry": ("odometry",),
+        "radar": ("infrastructure-radar",)}
+
+    def __init__(self, setup: Setup, params: OraclePoseParams, truth: AssociationTruth) -> None:
+        self.setup, self.params = setup, params
+        self._origin = truth.origin
+        self._known = _known_poses(setup, params, truth)
+        self.pose_prior_cov = _pose_prior(params)
+
+    def _rows(self, frame: Frame) -> FrameRows:
+        return FrameRows.of(frame, self._origin[frame.k] if frame.k < len(self._origin) else {})
+
+
 @register_estimator
-class OraclePose:
+class OraclePose(_PoseBound):
     """Iterated EKF of all vehicles and the radar poses with the true association (filtered).
 
     Uses: GNSS rows (identified or anonymous, by their true origin), odometry, and the
@@ -111,25 +132,16 @@ class OraclePose:
     name: ClassVar[str] = "oracle-pose"
     summary: ClassVar[str] = ("iterated EKF of the vehicles AND the radar's unknown pose from GPS, odometry "
                               "and radar rows with KNOWN association — the filtered bound, not a method")
-    Params: ClassVar[type[Params]] = OraclePoseParams
-    needs_truth: ClassVar[bool] = True
-    default_preset: ClassVar[str] = "gulati-2v"
-    required_sensors: ClassVar[tuple[str, ...]] = ("radar",)
-    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
-        "gnss": ("gnss-position", "anonymous-position"), "odometry": ("odometry",),
-        "radar": ("infrastructure-radar",)}
 
     def __init__(self, setup: Setup, params: OraclePoseParams, rng: np.random.Generator, *,
                  truth: AssociationTruth) -> None:
-        self.setup, self.params = setup, params
-        self._origin = truth.origin
-        self.filter = PoseFilter(setup, self.name, _pose_prior(params), _known_poses(setup, params, truth),
-                                 params.max_iterations, params.tolerance)
+        super().__init__(setup, params, truth)
+        self.filter = PoseFilter(setup, self.name, self.pose_prior_cov, self._known, params.max_iterations,
+                                 params.tolerance)
 
     def step(self, frame: Frame) -> Estimate:
         """Fuse the frame's rows; the filtered estimate of the vehicles present."""
-        origin = self._origin[frame.k] if frame.k < len(self._origin) else {}
-        rows = FrameRows.of(frame, origin)
+        rows = self._rows(frame)
         mean, cov = self.filter.step(frame, rows)
         return Estimate(checked_states(self.name, "vehicle", rows.ids, mean, cov),
                         info={"poses": self.filter.n_poses, "nis": self.filter.nis})
@@ -140,7 +152,7 @@ class OraclePose:
 
 
 @register_estimator
-class OraclePoseSmoother:
+class OraclePoseSmoother(_PoseBound):
     """The MAP estimate of the whole run and of the radar poses with the true association.
 
     `step` returns the initial guess, `kf-known-da`'s filter of the GNSS and odometry rows
@@ -150,28 +162,19 @@ class OraclePoseSmoother:
     name: ClassVar[str] = "oracle-pose-smoother"
     summary: ClassVar[str] = ("batch LM smoother of the vehicles AND the radar's unknown pose from GPS, "
                               "odometry and radar rows with KNOWN association — the smoothed bound")
-    Params: ClassVar[type[Params]] = OraclePoseParams
-    needs_truth: ClassVar[bool] = True
-    default_preset: ClassVar[str] = "gulati-2v"
-    required_sensors: ClassVar[tuple[str, ...]] = ("radar",)
-    usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = OraclePose.usable_sensors
 
     def __init__(self, setup: Setup, params: OraclePoseParams, rng: np.random.Generator, *,
                  truth: AssociationTruth) -> None:
-        self.setup, self.params = setup, params
-        self._origin = truth.origin
-        self._known = _known_poses(setup, params, truth)
+        super().__init__(setup, params, truth)
         self._initial = KFKnownDA(setup, KFKnownDA.Params(), rng, truth=truth)
         self.chains = Chains(setup)
         self.models = Models.of(setup)
-        self.pose_prior_cov = _pose_prior(params)
         self.initial_poses: dict[int, FloatArray] = {}
         self.smoothed_poses: dict[int, tuple[FloatArray, FloatArray]] = {}
 
     def step(self, frame: Frame) -> Estimate:
         """Record the frame's rows; the initial guess (GNSS + odometry filter) of this step."""
-        origin = self._origin[frame.k] if frame.k < len(self._origin) else {}
-        rows = FrameRows.of(frame, origin)
+        rows = self._rows(frame)
         self.chains.add(frame, rows)
         out = self._initial.step(frame)
         self.chains.set_mean(out.vehicles.take(rows.ids).mean if len(rows.ids) else

@@ -15,7 +15,11 @@ The problem apart from the filters that use it:
   likelihood kernel lives in the private `_kernels`, compiled on first use);
 - `filter_base` — what both filters share: parameters, vehicles entering and leaving,
   GPS gating against clutter, the per-step assembly of eq. (19);
-- `pf` — `sme-pf` (`SmePF`, `SmePFParams`): the paper's particle filter;
+- `pf` — `sme-pf` (`SmePF`, `SmePFParams`): the paper's particle filter, by default with
+  the linearized optimal proposal of `proposal` (an auxiliary particle filter), or
+  drawing from the motion model (``proposal="bootstrap"``);
+- `proposal` — the linearized proposal: eq. (19) linearized by statistical linear
+  regression over the predicted cloud, each particle's Kalman posterior under it;
 - `ukf` — `sme-ukf` (`SmeUKF`, `SmeUKFParams`): the §4.2.3 check under a UKF.
 
 The particle toolkit (resampling, effective sample size, moments) is

@@ -155,3 +155,26 @@ def sme_log_likelihood(u: FloatArray, y_gnss: FloatArray, gnss_var: FloatArray, 
             total += -0.5 * (_LOG_2PI + np.log(v_t) + (y_radar - m_t) ** 2 / v_t)
         out[p] = total
     return out
+
+
+@numba.njit(cache=True)
+def best_permutations(cost: FloatArray, perms: np.ndarray) -> np.ndarray:
+    """For each particle p, the row of `perms` (M, N) minimising Σ_i cost[p, i, perms[m, i]].
+
+    cost (P, N, N): cost[p, i, j] of putting the particle's block j in slot i (the
+    relabelling of `sme-pf`); returns (P,) indices into perms. O(P M N).
+    """
+    P, n = cost.shape[0], cost.shape[1]
+    out = np.zeros(P, dtype=np.int64)
+    for p in range(P):
+        best = np.inf
+        for m in range(perms.shape[0]):
+            total = 0.0
+            for i in range(n):
+                total += cost[p, i, perms[m, i]]
+                if total >= best:
+                    break
+            if total < best:
+                best = total
+                out[p] = m
+    return out

@@ -7,41 +7,67 @@ utilized to execute the SME filter with the sum of powers format".
 Model
 -----
 Particles (n_particles, N, dx) of the joint state x = [x¹; …; xᴺ] (eq. 1), one weight
-per joint particle, predicted block by block by the motion model, x_k = A x_{k−1} + w_k
-(eq. 16), and weighted in log domain by the Gaussian pseudo-likelihood of eq. (19)
-evaluated *per particle*, p(y | x) = N(y; h(x) + b(x), R(x)) with its own bias and
-covariance (`PseudoMeasurement.log_likelihood`, numba; noise moments in ``docs/sme.md``).
+per joint particle, each with the prior kernel of the motion model,
+p(x_k | x_{k−1}) = N(A x_{k−1}, blockdiag Q) (eq. 16), weighted in log domain by the
+Gaussian pseudo-likelihood of eq. (19) evaluated *per particle*,
+p(y | x) = N(y; h(x) + b(x), R(x)) with its own bias and covariance
+(`PseudoMeasurement.log_likelihood`, numba; noise moments in ``docs/sme.md``).
 
-Choices the paper leaves open
------------------------------
-- Tempering. A plain bootstrap update collapses in this 4N-dimensional state, so the
-  likelihood enters in powers δ (progressive correction, Oudjane & Musso 2000) chosen
-  by bisection so that each stage keeps `target_ess` of the particles (Jasra et al.
-  2011): w ∝ w p(y | x)^δ.
-- Resample-move. After each systematic resampling inside the update, `n_moves`
-  Metropolis–Hastings sweeps move the particles (Gilks & Berzuini 2001) with target
-  p(x_k | x_{k−1}) p(y | x_k)^β given each particle's own parent x_{k−1}; random-walk
-  proposals scaled 2.38²/d times the narrower of the cloud's and the transition's
-  covariance (Roberts & Rosenthal 2001; acceptance ≈ 0.24).
+How the particles are drawn (`proposal`; the paper leaves it open)
+------------------------------------------------------------------
+- ``"linearized"`` (default): an auxiliary particle filter (Pitt & Shephard 1999) with
+  the linearized optimal proposal of the extended/unscented particle filter (Doucet,
+  Godsill & Andrieu 2000; van der Merwe et al. 2000), module `proposal`: eq. (19) is
+  linearized once per step by statistical linear regression over the predicted cloud;
+  parents are drawn by w_j λ_j (λ_j their linearized predictive likelihood), each
+  particle from its parent's Kalman posterior, and weighted by p(y | x) / N(y; H x + c, Λ)
+  — only the linearization error weighs. When the effective sample size falls below
+  `resample_threshold`, the cloud is resampled and moved by `n_moves` independence
+  Metropolis–Hastings sweeps with the same proposal. Where the linearization is not
+  positive definite, that step falls back to a bootstrap update
+  (``info["proposal_fallback"]``).
+- ``"bootstrap"``: the paper's kind of particle filter, drawing from the motion model.
+  A plain bootstrap update collapses in this 4N-dimensional state, so the likelihood
+  enters in powers δ (progressive correction, Oudjane & Musso 2000) chosen by bisection
+  so that each stage keeps `target_ess` of the particles (Jasra et al. 2011),
+  w ∝ w p(y | x)^δ; after each resampling inside the update `n_moves` random-walk
+  Metropolis–Hastings sweeps (Gilks & Berzuini 2001) move the particles with target
+  p(x_k | x_{k−1}) p(y | x_k)^β, proposals scaled 2.38²/d times the narrower of the
+  cloud's and the transition's covariance (Roberts & Rosenthal 2001).
+
+Why the default is ``"linearized"``: with the topology switched off, SME sees what the
+associated GPS rows give wherever the vehicles are apart, so its particle filter should
+match `kf-known-da` there — the bootstrap filter does not (its draws from the motion
+model mostly miss the 2N-dimensional likelihood), the linearized one does within Monte
+Carlo noise (``tests/test_sme.py``); ``cooploc reproduce zhang2016`` and
+``benchmarks/zhang2016.py`` measure both against the particle count.
+
+Other choices the paper leaves open
+-----------------------------------
 - Relabelling. After each update the vehicle blocks of every particle are permuted to
   best match the predicted estimate (exhaustive over the N! permutations for N ≤ 7,
-  otherwise skipped). The likelihood and the (identical per-vehicle) motion model are
-  symmetric, so this leaves the symmetrised posterior unchanged, but it keeps particles
-  that swapped two crossing vehicles from being averaged into a point between them
-  (the MMOSPA-style estimate of Crouse, Willett et al. 2011).
-- `n_particles`: `benchmarks/zhang2016.py` and `cooploc reproduce zhang2016` measure
-  the error against the particle count; the default is chosen from that curve.
+  numba; otherwise skipped); `relabel_iterations` > 1 repeats it against the relabelled
+  mean. The likelihood and the (identical per-vehicle) motion model are symmetric, so
+  this leaves the symmetrised posterior unchanged, but it keeps particles that swapped
+  two crossing vehicles from being averaged into a point between them (the MMOSPA-style
+  estimate of Crouse, Willett et al. 2011), and the predicted cloud unimodal for the
+  linearization.
+- `n_particles`: the default, 8000, is where the linearized filter's total error stops
+  falling in ``benchmarks/zhang2016.py`` (the number is in the benchmark's JSON).
 - Resampling, effective sample size and the moments of the joint cloud come from
   `cooploc.particles` (`systematic_resample`, `effective_sample_size`,
   `marginal_moments`); a floor of 1e-9 on each block's covariance keeps it positive
   definite when the particles collapse.
 
-`Estimate.info` adds ``ess``, ``resampled``, ``stages`` (tempering stages this step),
-``acceptance`` (of the moves) and ``degenerate`` (every likelihood was zero) to the
-keys of `filter_base`.
+`Estimate.info` adds ``ess`` (after the update, before any resampling), ``resampled``,
+``stages`` (likelihood stages this step: tempering stages of the bootstrap proposal, 1
+for the linearized one), ``acceptance`` (of the moves) and ``degenerate`` (every
+likelihood was zero) to the keys of `filter_base`.
 
-Complexity per step: O(S P N⁴) for S tempering stages with `n_moves` likelihood passes
-each (per particle: moments O(N³), O(N⁴) in complex form, and a 2N × 2N Cholesky), plus
+Complexity per step: linearized, O(d³ + d² D) for the linearization (d = N dx,
+D = 2N + 1) and O(P d²) to draw, plus one likelihood pass (per particle: moments O(N⁴) in
+complex form, O(N³) per axis, and a 2N × 2N Cholesky) and `n_moves` more when it
+resamples; bootstrap, S tempering stages with `n_moves` likelihood passes each. Plus
 O(P N! N) for the relabelling.
 """
 
@@ -72,15 +98,22 @@ class SmePFParams(_SmeParams):
 
     n_particles : particles of the joint state (default chosen by measurement: see
         `benchmarks/zhang2016.py` and the report of `cooploc reproduce zhang2016`).
+    proposal : "linearized" (default: auxiliary particle filter with the linearized
+        optimal proposal) or "bootstrap" (draws from the motion model, tempered; the
+        paper's kind of particle filter). See the module docstring.
+    linearization_iterations : statistical linear regressions per step of the linearized
+        proposal (> 1: relinearize about the posterior, posterior linearization).
     resample_threshold : resample when ESS < threshold · n_particles.
     relabel : align the vehicle blocks of the particles to the predicted estimate.
-    target_ess : ESS fraction each tempering stage keeps (progressive correction).
-    n_moves : Metropolis–Hastings sweeps after each resampling inside the update (0: a
-        plain bootstrap filter with tempering only).
-    max_stages : at most this many tempering stages per step.
+    relabel_iterations : assignments per relabelling (> 1: against the relabelled mean).
+    target_ess : ESS fraction each tempering stage keeps (bootstrap proposal).
+    n_moves : Metropolis–Hastings sweeps after each resampling inside the update:
+        independence moves with the linearized proposal, random-walk moves with the
+        bootstrap one (0: none).
+    max_stages : at most this many tempering stages per step (bootstrap proposal).
     """
 
-    n_particles: int = param(2000, ge=2)
+    n_particles: int = param(8000, ge=2)
     proposal: Literal["linearized", "bootstrap"] = "linearized"
     linearization_iterations: int = param(1, ge=1)
     resample_threshold: float = param(0.5, ge=0, le=1)
@@ -146,6 +179,8 @@ class SmePF(_SmeFilter):
         relabelled cloud and the assignment is repeated (the fixed-point iteration of the
         MMOSPA estimate, Crouse, Willett et al. 2011) until no particle changes.
         """
+        from cooploc.estimators.sme._kernels import best_permutations  # numba, on first use
+
         n = self.ids.size
         if not self.params.relabel or n < 2 or n > _MAX_EXHAUSTIVE:
             return
@@ -155,9 +190,8 @@ class SmePF(_SmeFilter):
             if iteration:
                 reference = marginal_moments(self.particles, self.log_w)[0]
             diff = self.particles[:, None, :, :] - reference[None, :, None, :]     # (P, N_ref, N, dx)
-            cost = (diff**2).sum(-1)                                                 # (P, i, j)
-            total = cost[:, np.arange(n)[None, :], self._perms].sum(-1)              # (P, n!)
-            best = self._perms[np.argmin(total, axis=1)]                             # (P, N)
+            cost = np.ascontiguousarray((diff**2).sum(-1))                           # (P, i, j)
+            best = self._perms[best_permutations(cost, self._perms)]                 # (P, N)
             moved = (best != np.arange(n)).any(axis=1)
             if not moved.any():
                 break

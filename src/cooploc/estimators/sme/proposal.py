@@ -5,39 +5,42 @@ likelihood; with the 2N + 1 pseudo-measurements of eq. (19) constraining a 4N-di
 joint state (N = 5: 20 dimensions) most of those draws miss, and the cloud is thin where
 the posterior is (``cooploc reproduce zhang2016`` measures what that costs). This module
 builds the proposal of the extended/unscented particle filter instead (Doucet, Godsill
-& Andrieu 2000, §II.D; van der Merwe, Doucet, de Freitas & Wan 2000): each particle i
-is drawn from the posterior of a *linearized* model given its own prior kernel.
+& Andrieu 2000, §II.D; van der Merwe, Doucet, de Freitas & Wan 2000), used by `sme-pf`
+as an auxiliary particle filter (Pitt & Shephard 1999): each particle is drawn from the
+posterior of a *linearized* model given its parent.
 
 Model
 -----
-Each particle's prior kernel is N(x; μ_i, Σ₀) — μ_i = A x_{k−1}^i with Σ₀ = blockdiag(Q)
+Each particle's prior kernel is N(x; μ_j, Σ₀) — μ_j = A x_{k−1}^j with Σ₀ = blockdiag(Q)
 (eq. 16) for vehicles that continue, the entry belief for vehicles that enter. The
 pseudo-measurement y (eq. 19) is linearized once per step by statistical linear
 regression (SLR) about the Gaussian moment-matched to the predicted cloud,
-N(m, P) with m = Σ w_i μ_i, P = Σ w_i (μ_i − m)(μ_i − m)ᵀ + Σ₀:
+N(m, P) with m = Σ w_j μ_j, P = Σ w_j (μ_j − m)(μ_j − m)ᵀ + Σ₀:
 
 .. math:: y ≈ H x + c + e, \quad e ∼ N(0, Λ), \quad Λ = Ω_{SLR} + E[R(x)],
 
 where Ω_SLR is the SLR's linearization error over the whole cloud and E[R(x)] the
 pseudo-measurement noise averaged over the sigma points (`PseudoMeasurement.predict`).
-Under that model each particle's posterior is Gaussian with a shared gain:
+With ``iterations`` > 1 the SLR is repeated about the Gaussian posterior of the previous
+linearization (posterior linearization, García-Fernández et al. 2015). Under that model
+each parent's posterior is Gaussian with a shared gain:
 
 .. math:: S = H Σ₀ Hᵀ + Λ, \quad K = Σ₀ Hᵀ S^{-1}, \quad
-          μ_i^+ = μ_i + K (y − H μ_i − c), \quad Σ^+ = (I − K H) Σ₀ (I − K H)ᵀ + K Λ Kᵀ.
+          μ_j^+ = μ_j + K (y − H μ_j − c), \quad Σ^+ = (I − K H) Σ₀ (I − K H)ᵀ + K Λ Kᵀ,
 
-The particle is drawn from it, x_i = μ_i^+ + L ε_i (L Lᵀ = Σ^+), and weighted with the
-*exact* pseudo-likelihood, so the linearization only shapes the proposal, never the
-target:
+and N(x; μ_j, Σ₀) N(y; H x + c, Λ) = λ_j N(x; μ_j^+, Σ^+) with λ_j = N(y; H μ_j + c, S)
+for every x. The auxiliary filter draws parent j with probability ∝ w_j λ_j, then
+x ~ N(μ_j^+, Σ^+), and weights by the *exact* pseudo-likelihood over the linearized one,
 
-.. math:: w_i ∝ w_i \; p(y | x_i) \, N(x_i; μ_i, Σ₀) / N(x_i; μ_i^+, Σ^+).
+.. math:: w ∝ p(y | x) \, N(x; μ_j, Σ₀) / (λ_j N(x; μ_j^+, Σ^+)) = p(y | x) / N(y; H x + c, Λ),
 
-Where the model is linear (the GPS sums of powers of well separated vehicles, locally)
-this is the optimal proposal and the weights barely vary; Ω_SLR widens the proposal where
-it is not, which keeps the weights' tails bounded.
+so the linearization only shapes the proposal, never the target. Where the model is
+linear (the GPS sums of powers of well separated vehicles, locally) the weights are
+equal; Ω_SLR widens the proposal where it is not, which keeps the weights' tails bounded.
 
 Complexity per step: O(d³ + d² D) for the SLR and the gain (d = N dx, D = 2N + 1, one
-pass of the 2d + 1 sigma points), O(P d²) to draw, one pseudo-likelihood pass of the P
-particles (`PseudoMeasurement.log_likelihood`).
+pass of the 2d + 1 sigma points per iteration), O(P d²) to draw, O(P D²) for the
+linearized likelihoods.
 """
 
 from __future__ import annotations
@@ -116,6 +119,13 @@ def linearized_proposal(prior_mean: FloatArray, prior_cov: FloatArray, log_w: Fl
     log_w : (P,) log-weights (need not be normalised) the predicted cloud is summarised with.
     model : the step's pseudo-measurement (eq. 19), at least one part measured.
     position : the position components of a vehicle block.
+    iterations : SLRs, each about the previous one's Gaussian posterior (1: about the prior).
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        where a covariance of the linearized model is not positive definite (the caller
+        falls back to another proposal).
     """
     P, N, dx = prior_mean.shape
     d = N * dx
@@ -126,7 +136,7 @@ def linearized_proposal(prior_mean: FloatArray, prior_cov: FloatArray, log_w: Fl
         Sigma0[n * dx:(n + 1) * dx, n * dx:(n + 1) * dx] = prior_cov[n]
     m = w @ mu
     centred = mu - m
-    Pcov = symmetrize(np.einsum("p,pi,pj->ij", w, centred, centred) + Sigma0)
+    Pcov = symmetrize((centred * w[:, None]).T @ centred + Sigma0)
 
     def positions(chi: FloatArray) -> FloatArray:
         return chi.reshape(-1, N, dx)[:, :, position]
@@ -147,5 +157,6 @@ def linearized_proposal(prior_mean: FloatArray, prior_cov: FloatArray, log_w: Fl
     mean = (mu + innovation @ K.T).reshape(P, N, dx)
     I_KH = np.eye(d) - K @ H
     cov = symmetrize(I_KH @ Sigma0 @ I_KH.T + K @ Lam @ K.T)                # Joseph form
-    log_predictive = _shared_logpdf(innovation, np.linalg.cholesky(S))                        # log N(y; H μ_i + c, S)
-    return LinearizedProposal(mean, np.linalg.cholesky(cov), log_predictive, y, H, c, np.linalg.cholesky(Lam))
+    log_predictive = _shared_logpdf(innovation, np.linalg.cholesky(S))      # log N(y; H μ_i + c, S)
+    return LinearizedProposal(mean, np.linalg.cholesky(cov), log_predictive, y, H, c,
+                              np.linalg.cholesky(Lam))
