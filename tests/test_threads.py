@@ -17,7 +17,9 @@ def _single_threaded(report: dict) -> None:
     assert report["pools"], "threadpoolctl found no BLAS/OpenMP library"
     assert all(n == 1 for _, n in report["pools"]), report
     assert report["numba"] == 1, report
-    assert all(report["env"][var] == "1" for var in THREAD_VARIABLES), report
+    # NUMBA_NUM_THREADS stays as it was where numba was loaded before (numba would refuse a
+    # changed value at its next compilation); set_num_threads limits it instead
+    assert all(report["env"][var] == "1" for var in THREAD_VARIABLES if var != "NUMBA_NUM_THREADS"), report
 
 
 def test_process_workers_run_one_thread():
@@ -71,3 +73,27 @@ def test_cli_threads_runs_the_serial_backend(tmp_path):
                                       "--out", str(tmp_path / "out")])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "out" / "summary.json").is_file()
+
+
+def test_a_worker_compiles_after_one_thread_where_numba_was_loaded(tmp_path):
+    """numba reads NUMBA_NUM_THREADS again at each compilation and raises once its pool has
+    started with another count: a worker that had numba loaded (forked from a parent that
+    used it) must still compile new parallel kernels after `one_thread`."""
+    import subprocess
+    import sys
+
+    code = (
+        "import numba, numpy as np\n"
+        "from cooploc.backends import one_thread\n"
+        "one_thread()\n"
+        "@numba.njit(parallel=True)\n"
+        "def f(x):\n"
+        "    s = 0.0\n"
+        "    for i in numba.prange(x.size):\n"
+        "        s += x[i]\n"
+        "    return s\n"
+        "print(f(np.ones(10)), numba.get_num_threads())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["10.0", "1"]

@@ -27,7 +27,9 @@ more (`one_thread`): the environment variables ``OMP_NUM_THREADS``,
 libraries the worker loads later, and threadpoolctl limits the ones it has loaded
 already (a forked worker inherits its parent's OpenBLAS, whose thread count was read
 when it loaded). numba's pool, once started, cannot grow past the count it started
-with, so only `numba.set_num_threads` is applied to it. The serial backend runs in
+with, and numba refuses a changed ``NUMBA_NUM_THREADS`` at its next compilation once
+the pool has started, so where numba is loaded already only `numba.set_num_threads` is
+applied to it. The serial backend runs in
 the calling process with the libraries' own defaults (every core), or with
 `limit_threads(n)` around it (``--threads N``).
 """
@@ -62,12 +64,16 @@ def _set_threads(n: int) -> Callable[[], None]:
     """Limit BLAS/OpenMP/numba threads to `n` in this process; returns the undo."""
     from threadpoolctl import threadpool_limits
 
-    before = {var: os.environ.get(var) for var in THREAD_VARIABLES}
-    for var in THREAD_VARIABLES:  # libraries loaded from now on read these
+    numba_loaded = "numba" in sys.modules  # not imported for this: importing numba costs a second
+    # numba reads NUMBA_NUM_THREADS again at every compilation and refuses a changed value
+    # once its pool has started, so once it is loaded only set_num_threads limits it
+    variables = [v for v in THREAD_VARIABLES if not (numba_loaded and v == "NUMBA_NUM_THREADS")]
+    before = {var: os.environ.get(var) for var in variables}
+    for var in variables:  # libraries loaded from now on read these
         os.environ[var] = str(n)
     limits = threadpool_limits(n)  # the libraries loaded already
     numba_before = None
-    if "numba" in sys.modules:  # not imported for this: importing numba costs a second
+    if numba_loaded:
         import numba
 
         numba_before = numba.get_num_threads()
