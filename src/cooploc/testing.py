@@ -58,6 +58,7 @@ from cooploc.types import AssociationTruth, Batch, Estimate, Frame, Recording, S
 
 __all__ = [
     "CHECKS",
+    "CONTRACT_PARTICLES",
     "SMALL_STEPS",
     "TRAFFIC_ABSENT",
     "CheckSkipped",
@@ -65,6 +66,7 @@ __all__ = [
     "assert_state_set",
     "assert_valid_estimate",
     "check_estimator",
+    "contract_params",
     "on_preset",
     "preset_recording",
     "run_check",
@@ -82,6 +84,10 @@ SMALL_STEPS = 40
 #: leaves for steps 10–19 and comes back at step 20 (keys: vehicle ids of froehle2018).
 TRAFFIC_ABSENT: dict[int, range] = {1: range(0, 5), 2: range(10, 20)}
 
+#: the checks test behaviour, not accuracy: particle estimators run with at most this many
+#: particles unless a check gives its own parameters (a default of thousands, chosen for
+#: accuracy, would make the contract slow without testing more)
+CONTRACT_PARTICLES = 2000
 #: long runs check stability, not accuracy: fewer particles make degeneracy likelier
 LONG_RUN_PARTICLES = 300
 LONG_RUN_STEPS = 2000
@@ -254,9 +260,19 @@ def run_estimator(estimator: type | str, recording: Recording, seed: Any = 0,
     """Construct `estimator` (a registered name or a class; truth only if it needs it) and
     step it through `recording`; the per-step estimates (no smoothing)."""
     cls = _estimator_class(estimator)
-    est = construct(cls, recording.setup, params, np.random.default_rng(seed),
-                    truth=recording.truth if cls.needs_truth else None)
+    est = construct(cls, recording.setup, params if params is not None else contract_params(cls),
+                    np.random.default_rng(seed), truth=recording.truth if cls.needs_truth else None)
     return estimate(est, recording, smooth=False)
+
+
+def contract_params(cls: type, max_particles: int = CONTRACT_PARTICLES) -> Params:
+    """`cls`'s default parameters, with at most `max_particles` particles where it has a
+    ``n_particles`` parameter."""
+    params = cls.Params()
+    if "n_particles" in params.keys():
+        params = params.with_overrides(
+            {"n_particles": min(params.n_particles, max_particles)})  # type: ignore[attr-defined]
+    return params
 
 
 # ----------------------------------------------------------------------------
@@ -443,11 +459,7 @@ def long_run(cls: type, seed: int, n_steps: int = LONG_RUN_STEPS) -> tuple[Recor
               "n_vehicles": 2 + int(getattr(preset.params, "n_anchors", 0)),
               "n_features": 1, "gnss_variances": (15.0,)}
     rec = _recording(preset.name, seed, tuple(sorted((k, v) for k, v in wanted.items() if k in keys)))
-    params = cls.Params()
-    if "n_particles" in params.keys():
-        params = params.with_overrides(
-            {"n_particles": min(params.n_particles, LONG_RUN_PARTICLES)})  # type: ignore[attr-defined]
-    return rec, params
+    return rec, contract_params(cls, LONG_RUN_PARTICLES)
 
 
 def check_long_run(cls: type, seed: int) -> None:
@@ -482,7 +494,7 @@ def check_truth_only_to_references(cls: type, seed: int) -> None:
             super().__init__(*args, **kwargs)
 
     rec = contract_recording(cls, seed)
-    estimator = construct(Spy, rec.setup, None, np.random.default_rng(0), truth=rec.truth)
+    estimator = construct(Spy, rec.setup, contract_params(cls), np.random.default_rng(0), truth=rec.truth)
     handed = list(received["args"]) + list(received["kwargs"].values())
     assert not any(isinstance(x, Truth) for x in handed), "the full Truth was handed over"
     assert not any(isinstance(x, Truth) for x in vars(estimator).values())
