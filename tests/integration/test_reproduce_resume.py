@@ -97,3 +97,16 @@ def test_map_tasks_are_kept(tmp_path) -> None:
 def test_cli_resume_option(tmp_path) -> None:
     result = CliRunner().invoke(app, ["reproduce", "--help"])
     assert "--resume" in result.output
+
+
+def test_map_takes_partial_functions(tmp_path) -> None:
+    import functools
+
+    checkpoint = Checkpoint(tmp_path, resume=False)
+    ctx = ReproduceContext(ReproduceOptions(tmp_path, backend="serial"), tmp_path, 1, [], checkpoint)
+    assert ctx.map(functools.partial(_power, exponent=3), [2, 3], "cubes") == [8, 27]
+    assert ctx.map(functools.partial(_power, exponent=2), [2, 3], "squares") == [4, 9]  # another key
+
+
+def _power(x: int, exponent: int) -> int:
+    return x ** exponent

@@ -7,7 +7,8 @@ finishes, under a key that depends only on what determines its numbers:
 - a run: the experiment's settings except backend, workers and scheduler (as
   `ExperimentConfig.same_experiment`), and the run number — so a study interrupted
   under one backend resumes under another with the same numbers;
-- a task of `map`: the function's qualified name and the pickled task.
+- a task of `map`: the pickled function (its name, and a partial's bound arguments)
+  and the pickled task.
 
 Units are pickled whole (a `RunResult` or a task's return value; floats keep their
 bits) and written atomically, so a killed process leaves only complete units. Without
@@ -47,8 +48,9 @@ def config_key(config: ExperimentConfig) -> str:
 
 
 def task_key(fn: Callable[[Any], Any], task: Any) -> str:
-    """A key of one `map` task: the function's name and the pickled task."""
-    return _digest(pickle.dumps((fn.__module__, fn.__qualname__, task), protocol=5))
+    """A key of one `map` task: the pickled function (a module-level one by its name, a
+    `functools.partial` with its bound arguments) and the pickled task."""
+    return _digest(pickle.dumps((fn, task), protocol=5))
 
 
 class Checkpoint:
