@@ -59,6 +59,10 @@ def _table() -> np.ndarray:
 _TABLE = _table()
 
 
+_ABS_MASK = np.int64(0x7FFFFFFFFFFFFFFF)   # a double's bits without the sign
+_INF_BITS = np.int64(0x7FF0000000000000)   # +inf; larger magnitudes are NaNs
+
+
 @intrinsic
 def _fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
     """a·b + c rounded once (LLVM's fma intrinsic: the vfmadd instruction where there is one)."""
@@ -106,4 +110,6 @@ def exp_inplace(x: np.ndarray) -> None:
         v = _MIN_SUBNORMAL if xf < _SUBNORMAL else v
         v = np.float32(0.0) if xf < _UNDERFLOW else v
         v = np.float32(np.inf) if xf > _OVERFLOW else v
-        x[l] = xf if xf != xf else v                # NaN stays NaN
+        # NaN stays NaN, tested on the bits: a float test (xf != xf) was folded away where the
+        # compiled loop came out under no-NaN assumptions (a cached build in the test suite)
+        x[l] = xf if (_bits(xd) & _ABS_MASK) > _INF_BITS else v
