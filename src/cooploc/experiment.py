@@ -86,6 +86,7 @@ __all__ = [
     "run_one",
     "run_recording",
     "run_sweep",
+    "sweep_configs",
 ]
 
 
@@ -483,6 +484,14 @@ def run_sweep(
     Every swept point uses the same seed (common random numbers). All runs of all
     points are scheduled together, so the backend stays busy across points.
     """
+    configs = sweep_configs(config, key, values, target)
+    return list(zip(values, run_configs(configs, progress, f"sweep {key}"), strict=True))
+
+
+def sweep_configs(config: ExperimentConfig, key: str, values: Sequence[Any],
+                  target: str = "scenario") -> list[ExperimentConfig]:
+    """`config` with `key` set to each of `values` in the scenario's params
+    (`target="scenario"`) or in one estimator's params (`target=<estimator name>`)."""
     configs = []
     for value in values:
         if target == "scenario":
@@ -498,7 +507,7 @@ def run_sweep(
                 raise ConfigError(f"sweep target {target!r} is not among the estimators")
             cfg = dataclasses.replace(config, estimators=tuple(specs))
         configs.append(cfg)
-    return list(zip(values, run_configs(configs, progress, f"sweep {key}"), strict=True))
+    return configs
 
 
 def run_configs(configs: Sequence[ExperimentConfig], progress: bool = False, label: str = "runs"

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ from cooploc.experiment import (
     iter_tasks,
     run_generators,
     run_recording,
+    sweep_configs,
 )
 from cooploc.registry import estimators, make_estimator
 from cooploc.reproduce.checkpoint import Checkpoint, task_key
@@ -144,8 +145,7 @@ class ReproduceContext:
               ) -> list[tuple[Any, ExperimentResult]]:
         """`config` at each value of scenario parameter `key` (common random numbers); a
         failed estimator-run stops here, as in `run`."""
-        configs = [replace(config, scenario_params=config.scenario_params.with_overrides({key: v}))
-                   for v in values]
+        configs = sweep_configs(config, key, values)
         points = list(zip(values, self._results(configs, f"sweep {key}"), strict=True))
         for _, result in points:
             result.raise_failure()
@@ -163,12 +163,8 @@ class ReproduceContext:
         """The runs of every config, all scheduled together; runs the checkpoint holds are
         taken from it, the others saved to it as they finish (failed ones are not)."""
         tasks = [(c, r) for c in configs for r in range(c.runs)]
-        keys = [self.checkpoint.run_key(c, r) if self.checkpoint else "" for c, r in tasks]
-        results: dict[int, RunResult] = {}
-        for i, key in enumerate(keys):
-            found, value = self.checkpoint.load(key) if self.checkpoint else (False, None)
-            if found:
-                results[i] = value
+        keys = [self.checkpoint.run_key(c, r) for c, r in tasks] if self.checkpoint else []
+        results: dict[int, RunResult] = self.checkpoint.held(keys) if self.checkpoint else {}
         todo = [i for i in range(len(tasks)) if i not in results]
         first = configs[0]
         for j, result in iter_tasks([tasks[i] for i in todo], first.backend, first.workers,
@@ -189,11 +185,7 @@ class ReproduceContext:
         `ExperimentConfig`; a progress bar if asked; finished tasks are kept in the
         checkpoint. `fn` must be a module-level function."""
         keys = [task_key(fn, t) for t in tasks] if self.checkpoint else []
-        results: dict[int, Any] = {}
-        for i, key in enumerate(keys):
-            found, value = self.checkpoint.load(key)
-            if found:
-                results[i] = value
+        results: dict[int, Any] = self.checkpoint.held(keys) if self.checkpoint else {}
         todo = [i for i in range(len(tasks)) if i not in results]
         progress = None
         if self.options.progress:

@@ -24,7 +24,7 @@ import hashlib
 import json
 import os
 import pickle
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -85,6 +85,15 @@ class Checkpoint:
                 return True, pickle.load(f)
         except Exception:  # an unreadable unit is computed again, whatever the reason
             return False, None
+
+    def held(self, keys: Sequence[str]) -> dict[int, Any]:
+        """{i: unit} of the `keys[i]` that finished earlier (`load`)."""
+        out = {}
+        for i, key in enumerate(keys):
+            found, value = self.load(key)
+            if found:
+                out[i] = value
+        return out
 
     def save(self, key: str, value: Any) -> None:
         path = self._path(key)
