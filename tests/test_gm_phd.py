@@ -23,6 +23,7 @@ from cooploc.estimators.gm_phd import (
     GMPHD,
     GMPHDParams,
     Mixture,
+    extract_count,
     merge_components,
     phd_update,
 )
@@ -97,3 +98,27 @@ def test_extracts_one_belief_per_vehicle_even_when_targets_merge(recording: Reco
     np.testing.assert_array_equal(estimate.vehicles.mean[:, 0], [1.0, 1.0, 9.0])
     assert estimate.info["set_valued"] and estimate.info["n_extracted_vo_ma"] == 2
     assert estimate.info["cardinality"] == pytest.approx(2.4)
+
+
+def test_extraction_covers_two_crossing_pairs(recording: Recording) -> None:
+    """Two pairs of vehicles crossing at once (zhang2016-cv run 12, step 50): each pair is
+    two components of unequal weight; every pair must get two picks, the lone vehicle one
+    (the rule before picked the 1.476 twice and left the right pair one estimate short)."""
+    est = GMPHD(recording.setup, GMPHDParams(), np.random.default_rng(0))
+    est.step(recording.frames[0])
+    weights = [1.476, 1.471, 1.01, 0.543, 0.469]
+    positions = [[-75.4, 51.0], [75.5, 49.5], [-1.3, 150.5], [-75.3, 50.7], [74.9, 50.1]]
+    means = np.array([[x, y, 0.0, 0.0] for x, y in positions])
+    est.mixture = Mixture(np.log(weights), means, np.repeat((0.37 * np.eye(4))[None], 5, 0))
+    estimate = est._extract(Frame(50, 50.0, np.arange(5)))
+    x = estimate.vehicles.mean[:, 0]
+    # two picks at each crossing (x = ±75), one at the lone vehicle (x ≈ 0)
+    assert (x < -70).sum() == 2 and (x > 70).sum() == 2 and (np.abs(x) < 5).sum() == 1
+
+
+def test_extract_count_is_heaviest_first_for_separated_components() -> None:
+    """Far-apart components of weight about 1 each: the n heaviest, once each."""
+    w = np.array([0.7, 1.0, 0.9, 0.2])
+    means = np.array([[0.0, 0, 0, 0], [100, 0, 0, 0], [0, 100, 0, 0], [100, 100, 0, 0]])
+    mixture = Mixture(np.log(w), means, np.repeat(np.eye(4)[None], 4, 0))
+    np.testing.assert_array_equal(extract_count(mixture, 3, np.array([0, 1]), 4.0), [1, 2, 0])
