@@ -203,6 +203,19 @@ def _is_positive_definite(cov: FloatArray) -> bool:
     return bool(np.isfinite(cov).all())
 
 
+def _square_root(P: FloatArray) -> FloatArray:
+    """A factor S with S Sᵀ = P for each covariance: Cholesky's, or where float64 cannot
+    factor P (semi-definite in round-off: entries 10²⁵ beside 10⁻² after a prediction),
+    V diag(√max(λ, 0)) from its eigendecomposition. The array form needs only some S
+    with S Sᵀ = P, not a triangular one, and the eigenvalues that round-off pushed below
+    zero carry no information: clipping them is the nearest semi-definite P (Higham 1988)."""
+    try:
+        return np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        lam, V = np.linalg.eigh(symmetrize(P))
+        return V * np.sqrt(np.maximum(lam, 0.0))[..., None, :]
+
+
 def kf_update_square_root(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray) -> Gaussians:
     """The Kalman update of `kf_update` in square-root (array) form (module docstring).
 
@@ -217,7 +230,7 @@ def _kf_update_square_root(prior: Gaussians, z: FloatArray, H: FloatArray, R: Fl
     """`kf_update_square_root` and a function giving its NIS |S^−½ ν|²."""
     P = prior.cov
     n_x, n_z = P.shape[-1], np.shape(z)[-1]
-    S_p = np.linalg.cholesky(P)                                        # P⁻ = Sₚ Sₚᵀ
+    S_p = _square_root(P)                                              # P⁻ = Sₚ Sₚᵀ
     S_r = np.broadcast_to(np.linalg.cholesky(R), (*P.shape[:-2], n_z, n_z))
     H = np.broadcast_to(H, (*P.shape[:-2], n_z, n_x))
     pre = np.zeros((*P.shape[:-2], n_z + n_x, n_z + n_x))

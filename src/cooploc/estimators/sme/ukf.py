@@ -150,13 +150,15 @@ class SmeUKF(_SmeFilter):
             dX = points.reshape(points.shape[0], -1) - self.mean.ravel()
             S = symmetrize(np.einsum("s,si,sj->ij", w_c, dY, dY) + np.einsum("s,sij->ij", w_m, R))
             C = np.einsum("s,si,sj->ij", w_c, dX, dY)                        # cross-covariance
-            try:
-                K = np.linalg.solve(S, C.T).T                                # K = C S⁻¹
-            except np.linalg.LinAlgError:
+            # singular in float64 when its spectrum spans more than 1/ε: tested on the spectrum,
+            # since whether `solve` meets an exact zero pivot there depends on the LAPACK build
+            lam = np.linalg.eigvalsh(S) if np.isfinite(S).all() else np.full(1, np.nan)
+            if not np.isfinite(lam).all() or lam[0] <= lam[-1] * S.shape[0] * np.finfo(float).eps:
                 raise EstimatorError(self.name, "the innovation covariance of the pseudo-measurement "
                                      "(eq. 19) is singular: the sigma points' sums of powers lost all "
                                      "precision (a belief far from the rows, or covariances too far apart "
-                                     "for float64)") from None
+                                     "for float64)")
+            K = np.linalg.solve(S, C.T).T                                    # K = C S⁻¹
             self.mean = (self.mean.ravel() + K @ (y - y_hat)).reshape(self.mean.shape)
             info["nis"] = (float(nis(y - y_hat, S)), int(y.size))
             self.cov = symmetrize(self.cov - K @ S @ K.T)
