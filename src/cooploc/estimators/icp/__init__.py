@@ -16,7 +16,9 @@ Three estimators, one module each, each building on the one before:
   steps (11)–(12) is switched on by `feedback` and `feature_memory`: that module's
   docstring says what runs, and why the defaults are what they are.
 - `data_association` — `icp-da-lc`: BPA-DA (13)–(17) at each vehicle, MAP pairing with
-  a threshold (30), births of new features agreed by flooding, then the Gaussian BPA-L.
+  a threshold (30), births of new features agreed by flooding, then the Gaussian BPA-L;
+  before (13) each vehicle locates itself against the tracks it holds from all its rows
+  jointly (`registration`, a departure from the paper that its docstring explains).
 - `particle_bp` — `icp-da-pf`: the same association with soft pairings (18) and a
   particle BPA-L (23)–(29) with log-likelihood consensus (`cooploc.particles`).
 

@@ -9,8 +9,11 @@ row no tracked feature explains starts a new feature.
 Algorithm per step, at every agent i, before the Gaussian BPA-L of `icp`:
 
 1. (13) the association likelihood of row ℓ and track k with Gaussian beliefs:
-   η(α_ik = ℓ) = N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), from i's prior b_i^(0) and its
-   predicted copy of the track (12);
+   η(α_ik = ℓ) = N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), from i's belief (m_i, P_i) and
+   its predicted copy of the track (12). The paper's belief is i's prior b_i^(0); here
+   (`registration`, on by default) it is b_i^(0) after i has located itself against
+   the tracks it holds from all its rows jointly, without row ℓ itself
+   (`cooploc.estimators.icp.registration`), and b_i^(0) where that finds nothing;
 2. BPA-DA (14)–(17), P iterations over the tracks i holds (`association.bp_association`,
    Williams & Lau), batched over agents; the new-feature hypothesis takes the role of
    clutter, with intensity `new_feature_intensity`;
@@ -20,20 +23,32 @@ Algorithm per step, at every agent i, before the Gaussian BPA-L of `icp`:
    feature; the other unclaimed rows are discarded (`info["v2f_discarded"]`).
 
 Births are agreed without a coordinator: each candidate's global state g = z + m_i
-(covariance R + P_i) is flooded `share_hops` rounds (the vehicles that can see the
-same new feature are within 2 R_s of each other, neighbours when R_c ≥ 2 R_s); every
-agent groups the candidates it knows — greedily, closest pairs first, only pairs from
-different vehicles within the χ²(4) gate `BIRTH_GATE`, at most one row per vehicle in a
-group — and names each group after its first member, with an id every agent computes
-alike (`BIRTH_ID_BASE`). Agents that know the same candidates form the same groups.
+(covariance R + P_i, (m_i, P_i) the belief its (13) used) is flooded `share_hops`
+rounds (the vehicles that can see the same new feature are within 2 R_s of each
+other, neighbours when R_c ≥ 2 R_s); every agent groups the candidates it knows —
+greedily, closest pairs first, only pairs from different vehicles within the χ²(4)
+gate `BIRTH_GATE`, at most one row per vehicle in a group — and names each group after
+its first member, with an id every agent computes alike (`BIRTH_ID_BASE`). Agents
+that know the same candidates form the same groups.
 
 Choices the paper leaves open: the birth rule and its gate, P_D of a tracked feature
 (default 0.9; it lets a track out of a vehicle's view be "not detected"), and the
-new-feature intensity. The association uses each vehicle's GNSS-only prior (see the
-defaults of `icp`), not the refined belief.
+new-feature intensity. The association starts from each vehicle's GNSS-only prior (see
+the defaults of `icp`), not the refined belief.
 
-Cost per step and agent: O(P F W) for the BPA-DA over F tracks and W rows, O(C²) for
-grouping C birth candidates, then that of `icp`.
+Where this departs from the paper: the registration of step 1. The paper's (13) is
+evaluated pair by pair, so the BPA-DA treats a vehicle's rows as independent given
+the association although they share x_i; with a wide or biased b_i^(0) (a vehicle
+entering GNSS zone C, a GNSS-only filter after a turn) the pairings then need not fit
+any one vehicle position, and on `sumo-grid-tlr` (seed 0) the wrong hard pairings this
+made — 3 % of the rows, and 37 of the 92 rows of vehicles whose prior was wider than
+8.5 m, but stiff — pulled groups of vehicles ~10 m off: vehicle RMSE 2.19 m against
+`icp`'s 0.64 m; with the registration 0.64 m (docs/icp.md, "What the association
+sees"). `registration = False` gives the paper's (13).
+
+Cost per step and agent: O(P F W) for the BPA-DA over F tracks and W rows, O(H W F)
+for the registration (H pivot pairs, at most F W), O(C²) for grouping C birth
+candidates, then that of `icp`.
 """
 
 from __future__ import annotations
@@ -52,6 +67,7 @@ from cooploc.association import (
 from cooploc.consensus import flood
 from cooploc.errors import ConfigError
 from cooploc.estimators.icp.gaussian_bp import ICP, ICPParams
+from cooploc.estimators.icp.registration import register_vehicles
 from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf
 from cooploc.network import Network
 from cooploc.params import Params, param
@@ -84,6 +100,10 @@ class ICPDALCParams(ICPParams):
         hypothesis of the BPA-DA. A row whose new-feature probability is at least
         ½ and that no feature claims starts a new feature; other unclaimed rows are
         discarded (counted in `info["v2f_discarded"]`).
+    registration : True (default): each vehicle locates itself against the tracks it
+        holds from all its rows jointly before (13), and each row's η uses that belief
+        without the row itself (`cooploc.estimators.icp.registration`; the module
+        docstring says why). False: (13) with b_i^(0), as the paper.
     """
 
     da_iterations: int = param(5, ge=1)
@@ -91,13 +111,14 @@ class ICPDALCParams(ICPParams):
     detection_probability: float = param(0.9, gt=0, lt=1,
                                          must="lie in (0, 1) (tracks out of view must be missable)")
     new_feature_intensity: float = param(1e-5, gt=0)
+    registration: bool = True
 
 
 @dataclass(frozen=True)
 class _Association:
     """BPA-DA output of all agents: rows (n, W) padded by `mask`, tracks held (n, F),
-    marginals (None when there was nothing to associate) and each row's new-feature
-    probability (n, W)."""
+    marginals (None when there was nothing to associate), each row's new-feature
+    probability (n, W), and the vehicle belief each row was associated with."""
 
     row_of: IntArray
     mask: np.ndarray
@@ -105,6 +126,8 @@ class _Association:
     marginals: AssociationMarginals | None
     p_new: FloatArray
     log_likelihood: FloatArray | None = None      # (n, F, W) log η(α = ℓ) of eq. (13)
+    beliefs: Gaussians | None = None              # (n, W) the vehicle belief of each row's (13)
+    registered: np.ndarray | None = None          # (n,) vehicles registered (`registration`)
 
 
 @register_estimator
@@ -127,6 +150,7 @@ class ICPDALC(ICP):
 
     def __init__(self, setup: Setup, params: ICPDALCParams, rng: np.random.Generator) -> None:
         super().__init__(setup, params, rng)
+        self._sensing_range = float(getattr(setup.sensors.get("v2f"), "max_range", np.inf))
 
     def associate(self, frame: Frame, v2f: Batch, prior: Gaussians, network: Network
                   ) -> tuple[IntArray, dict]:
@@ -153,10 +177,11 @@ class ICPDALC(ICP):
             claimed[ai, w] = True
         candidate = da.mask & ~claimed & (da.p_new >= 0.5)
         discarded = da.mask & ~claimed & ~candidate
-        births, _, _ = self._births(frame.k, network, prior, v2f, da.row_of, candidate)
+        births, _, _ = self._births(frame.k, network, da.beliefs, v2f, da.row_of, candidate)
         track[da.row_of[candidate]] = births
         info = {"v2f_track": track, "v2f_discarded": int(discarded.sum()),
-                "births": int(np.unique(births).size)}
+                "births": int(np.unique(births).size),
+                "registered": 0 if da.registered is None else int(da.registered.sum())}
         return track, info
 
     def _bpa_da(self, v2f: Batch, prior: Gaussians, network: Network) -> _Association:
@@ -169,29 +194,54 @@ class ICPDALC(ICP):
         row_of = rows[index]
         copies = self.features
         known = copies.known()                                     # (n, F) tracks each agent holds
-        if not copies.ids.size or not index.shape[1]:
-            return _Association(row_of, mask, known, None, np.ones(index.shape))
-        # (13): η(α = ℓ) = N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), Gaussian beliefs, for the
-        # tracks each agent holds and its own rows only (the BPA-DA masks the rest)
+        W = index.shape[1]
+        beliefs = Gaussians(np.repeat(prior.mean[:, None], W, 1), np.repeat(prior.cov[:, None], W, 1))
+        if not copies.ids.size or not W:
+            return _Association(row_of, mask, known, None, np.ones(index.shape), beliefs=beliefs)
         ai, fk = np.nonzero(known)
         tracks = from_information(copies.Lam[ai, fk], copies.eta[ai, fk])
-        pair, wi = np.nonzero(mask[ai])                             # (agent, track) pair × its rows
-        a, f, rows = ai[pair], fk[pair], row_of[ai[pair], wi]
-        rel = tracks.mean[pair] - prior.mean[a]
-        S = v2f.cov[rows] + prior.cov[a] + tracks.cov[pair]
-        log_l = np.full(known.shape + mask.shape[1:], -np.inf)     # (n, F, W)
-        log_l[a, f, wi] = gaussian_logpdf(v2f.z[rows] - rel, S)
+        log_l = self._log_eta(v2f, beliefs, tracks, ai, fk, row_of, mask, known.shape[1])
+        registered = np.zeros(n, dtype=bool)
+        if p.registration:
+            # each vehicle locates itself against the tracks it holds (module docstring)
+            held_mean = np.zeros((*known.shape, self.d))
+            held_cov = np.zeros((*known.shape, self.d, self.d))
+            held_mean[ai, fk], held_cov[ai, fk] = tracks.mean, tracks.cov
+            z = np.where(mask[..., None], v2f.z[row_of], 0.0)
+            R = np.where(mask[..., None, None], v2f.cov[row_of], np.eye(self.d))
+            reg = register_vehicles(prior, z, R, mask, Gaussians(held_mean, held_cov), known, log_l,
+                                    p.detection_probability, p.new_feature_intensity, self._position,
+                                    self._sensing_range)
+            registered = reg.registered
+            if registered.any():
+                beliefs = reg.beliefs
+                log_l = self._log_eta(v2f, beliefs, tracks, ai, fk, row_of, mask, known.shape[1])
         log_psi, log_missed, log_new = association_weights(log_l, p.detection_probability,
                                                            p.new_feature_intensity)
         marginals = bp_association(log_psi, log_missed, log_new, p.da_iterations,       # (14)–(17)
                                    feature_mask=known, measurement_mask=mask)
-        return _Association(row_of, mask, known, marginals, marginals.clutter, log_l)
+        return _Association(row_of, mask, known, marginals, marginals.clutter, log_l, beliefs, registered)
 
-    def _births(self, k: int, network: Network, prior: Gaussians, v2f: Batch,
+    @staticmethod
+    def _log_eta(v2f: Batch, beliefs: Gaussians, tracks: Gaussians, ai: IntArray, fk: IntArray,
+                 row_of: IntArray, mask: np.ndarray, F: int) -> FloatArray:
+        """(13): log η(α = ℓ) = log N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), Gaussian beliefs, for
+        the tracks (ai, fk) each agent holds and its own rows only (−inf elsewhere); the
+        vehicle belief (m_i, P_i) of each row from `beliefs` (n, W)."""
+        pair, wi = np.nonzero(mask[ai])                             # (agent, track) pair × its rows
+        a, f, rows = ai[pair], fk[pair], row_of[ai[pair], wi]
+        rel = tracks.mean[pair] - beliefs.mean[a, wi]
+        S = v2f.cov[rows] + beliefs.cov[a, wi] + tracks.cov[pair]
+        log_l = np.full((mask.shape[0], F, mask.shape[1]), -np.inf)  # (n, F, W)
+        log_l[a, f, wi] = gaussian_logpdf(v2f.z[rows] - rel, S)
+        return log_l
+
+    def _births(self, k: int, network: Network, beliefs: Gaussians, v2f: Batch,
                 row_of: IntArray, candidate: np.ndarray) -> tuple[IntArray, FloatArray, FloatArray]:
         """Ids of the new features started by the candidate rows, agreed by flooding, and
         the first detection each id is named after (g, P per candidate row).
 
+        `beliefs` (n, W) is the vehicle belief each row was associated with (`_bpa_da`).
         Each candidate's global state g = z + m_i (covariance R + P_i) is flooded
         `share_hops` rounds to the agents around; every agent then groups the candidates it knows —
         greedily, closest pairs first, only pairs from different vehicles within the
@@ -207,8 +257,8 @@ class ICPDALC(ICP):
             raise ConfigError(f"{self.name}: ids for new features need agent ids < 2^20, "
                               "< 4096 V2F rows per vehicle and < 2^20 steps")
         ids = BIRTH_ID_BASE + (np.int64(k) << 32) + (agent_ids << 12) + wi
-        g = v2f.z[rows] + prior.mean[ai]
-        P = v2f.cov[rows] + prior.cov[ai]
+        g = v2f.z[rows] + beliefs.mean[ai, wi]
+        P = v2f.cov[rows] + beliefs.cov[ai, wi]
         C = ids.size
         n = network.n_agents
         have = np.zeros((n, C), dtype=bool)

@@ -80,9 +80,10 @@ shared copy.
 The reported feature estimate of each feature is the copy of the agent that holds
 the most information about it (`info["feature_source"]`).
 
-The association's vehicle beliefs (`icp-da-lc`) are the GNSS-only b_i^(0). The paper's
-(13) uses the refined predicted belief (11); its mean helps where a GNSS-only mean is
-far off, but a wrong pairing then moves the mean that the next pairing starts from
+The association's vehicle beliefs (`icp-da-lc`) start from the GNSS-only b_i^(0), which
+each vehicle registers against the tracks it holds (`registration`). The paper's (13)
+uses the refined predicted belief (11); its mean helps where a GNSS-only mean is far
+off, but a wrong pairing then moves the mean that the next pairing starts from
 (docs/icp.md: tried, and worse on sumo-braunschweig-tlr).
 
 Choices the paper leaves open: N_cons (default 20 rounds), the maximum number of

@@ -87,6 +87,8 @@ class ICPDAPFParams(ICPDALCParams):
     kernel_bandwidth : multiplier of Silverman's bandwidth with which the pair kernel is
         widened (0: the bare V2F noise, as the paper).
     proposal_floor : standard deviations (m, m/s) added to the feature proposal.
+    registration : as for `icp-da-lc`, but off by default: the particle version's soft
+        pairings (18) divide by η, and it has not been measured with the registered η.
     """
 
     n_particles: int = param(500, ge=2)
@@ -95,6 +97,7 @@ class ICPDAPFParams(ICPDALCParams):
     kernel_bandwidth: float = param(1.0, ge=0)
     proposal_floor: tuple[float, float] = param((1.0, 0.1), length=2, ge=0,
                                                 must="be two standard deviations >= 0 (m, m/s)")
+    registration: bool = False
 
 
 @register_estimator
@@ -159,7 +162,7 @@ class ICPDAPF(ICPDALC):
             p_assoc = log_eta = np.zeros(0)
             claimed = np.zeros((n, W), dtype=bool)
         candidate = da.mask & ~claimed & (da.p_new >= 0.5)
-        births, birth_g, birth_P = self._births(frame.k, network, prior, v2f, da.row_of, candidate)
+        births, birth_g, birth_P = self._births(frame.k, network, da.beliefs, v2f, da.row_of, candidate)
         # the MAP origin of each row, for association accuracy
         track = np.full(len(v2f), -1, dtype=np.int64)
         if da.marginals is not None:
