@@ -154,8 +154,9 @@ def with_traffic(recording: Recording, absent: Mapping[int, Iterable[int]],
         frames.append(Frame(k, frame.t, vehicles, batches, links))
         origins.append(origin)
     states = np.where(present[..., None], truth.vehicle_states, 0.0)
+    heading = None if truth.vehicle_heading is None else np.where(present, truth.vehicle_heading, 0.0)
     new_truth = dataclasses.replace(truth, vehicle_states=states, vehicle_present=present,
-                                    origin=origins)
+                                    origin=origins, vehicle_heading=heading)
     prior = recording.setup.vehicle_prior
     at_start = prior.ids[np.isin(prior.ids, truth.vehicle_ids[present[0]])]
     setup = recording.setup if keep_prior else dataclasses.replace(
@@ -512,9 +513,11 @@ def check_truth_only_to_references(cls: type, seed: int) -> None:
 
 def check_true_states_never_read(cls: type, seed: int) -> None:
     rec = contract_recording(cls, seed)
+    heading = rec.truth.vehicle_heading
     garbage = dataclasses.replace(
         rec.truth, vehicle_states=np.full_like(rec.truth.vehicle_states, 123.0),
-        feature_states=np.full_like(rec.truth.feature_states, -7.0))
+        feature_states=np.full_like(rec.truth.feature_states, -7.0),
+        vehicle_heading=None if heading is None else np.full_like(heading, 0.5))
     blind = Recording(rec.setup, rec.frames, garbage)
     _assert_same_numbers(run_estimator(cls, rec, seed=3), run_estimator(cls, blind, seed=3))
 
