@@ -325,6 +325,10 @@ def test_rotation_and_to_local() -> None:
     # a point 1 m north of the radar lies on the radar's +x axis when it faces north
     np.testing.assert_allclose(to_local(pose, [[10.0, -4.0]]), [[1.0, 0.0]], atol=EXACT_ATOL)
     assert rotation(np.zeros(3)).shape == (3, 2, 2)
+    # several poses at once: each pose's view of the points, as one pose at a time gives it
+    poses = np.array([[10.0, -5.0, np.pi / 2], [0.0, 0.0, -0.3], [3.0, 4.0, 2.0]])
+    points = np.array([[10.0, -4.0], [1.0, 2.0]])
+    np.testing.assert_array_equal(to_local(poses, points), np.stack([to_local(p, points) for p in poses]))
 
 
 def test_radar_is_a_rigid_transform_of_the_truth(rng: np.random.Generator) -> None:
@@ -358,6 +362,39 @@ def test_radar_rejects_bad_range() -> None:
         InfrastructureRadar(default_cov=np.eye(2), max_range=0.0)
 
 
+def test_radar_field_of_view(rng: np.random.Generator) -> None:
+    # a radar at (5, 5) looking north (yaw π/2), ±π/4 about its boresight, 20 m
+    radar = InfrastructureRadar(default_cov=_tiny_cov(), max_range=20.0, field_of_view=np.pi / 4)
+    pose = np.array([5.0, 5.0, np.pi / 2])
+    bearing = np.deg2rad([0.0, 40.0, -44.0, 46.0, -50.0, 180.0, 90.0, 10.0])  # from north, counter-clockwise
+    distance = np.array([10.0, 10.0, 19.0, 10.0, 5.0, 3.0, 8.0, 21.0])
+    xy = pose[:2] + distance[:, None] * np.stack([-np.sin(bearing), np.cos(bearing)], axis=1)
+    states = np.concatenate([xy, np.zeros((8, 2))], axis=1)
+    batch, origin = radar.measure(9, pose, np.arange(8), states, rng)
+    assert sorted(origin.tolist()) == [0, 1, 2]  # within ±45° and 20 m only
+    # the rows are the vehicles in the radar's frame: distance along the boresight (x) and left (y)
+    local = distance[origin, None] * np.stack([np.cos(bearing[origin]), np.sin(bearing[origin])], axis=1)
+    np.testing.assert_allclose(batch.z, local, atol=1e-9)
+    # all around (the default, the papers' radar): everything within range, behind it too
+    _, origin = InfrastructureRadar(default_cov=_tiny_cov(), max_range=20.0).measure(9, pose, np.arange(8),
+                                                                                    states, rng)
+    assert sorted(origin.tolist()) == [0, 1, 2, 3, 4, 5, 6]
+
+
+@pytest.mark.parametrize("fov", [0.0, -1.0, 3.2, float("nan"), float("inf"), "wide", True])
+def test_radar_rejects_bad_field_of_view(fov: object) -> None:
+    with pytest.raises(InvalidInputError, match="field_of_view"):
+        InfrastructureRadar(default_cov=np.eye(2), field_of_view=fov)
+
+
+def test_radar_field_of_view_in_to_dict() -> None:
+    # all around is left out, so the setups of the papers' radars keep their setup.json
+    assert "field_of_view" not in InfrastructureRadar(default_cov=np.eye(2)).to_dict()
+    narrow = InfrastructureRadar(default_cov=np.eye(2), field_of_view=1.0).to_dict()
+    assert narrow["field_of_view"] == 1.0
+    assert sensor_from_dict(json.loads(json.dumps(narrow))).field_of_view == 1.0
+
+
 def test_odometry_is_the_displacement(rng: np.random.Generator) -> None:
     odo = Odometry(default_cov=_tiny_cov())
     now, before = rng.normal(size=(3, 4)), rng.normal(size=(3, 4))
@@ -378,8 +415,9 @@ def test_odometry_is_the_displacement(rng: np.random.Generator) -> None:
     RelativePosition({3: np.diag([2.0, 0.5])}, default_cov=np.eye(2)),
     AnonymousPosition(default_cov=0.5 * np.eye(2), state_indices=(0, 2)),
     InfrastructureRadar({7: 0.1 * np.eye(2)}, max_range=150.0),
+    InfrastructureRadar(default_cov=0.1 * np.eye(2), max_range=50.0, field_of_view=np.pi / 3),
     Odometry(default_cov=np.eye(2)),
-], ids=["gnss", "gnss-pos-vel", "v2f", "anonymous", "radar", "odometry"])
+], ids=["gnss", "gnss-pos-vel", "v2f", "anonymous", "radar", "radar-fov", "odometry"])
 def test_sensor_from_dict_round_trip(sensor, rng: np.random.Generator) -> None:
     data = json.loads(json.dumps(sensor.to_dict()))  # must survive JSON (setup.json)
     again = sensor_from_dict(data)

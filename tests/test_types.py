@@ -103,6 +103,16 @@ def test_batch_non_positive_definite_cov(matrix: np.ndarray, eig: str) -> None:
         Batch(np.zeros((2, 2)), cov, [0, 1], [-1, -1])
 
 
+@pytest.mark.parametrize(("value", "eig"), [(0.0, "0"), (-0.5, "-0.5")])
+def test_batch_non_positive_angle_variance(value: float, eig: str) -> None:
+    # 1 × 1 covariances (AoA rows) are checked without a factorisation: the same refusal
+    cov = np.array([[[0.1]], [[value]], [[0.2]]])
+    match = rf"Batch\.cov\[1\] is not positive definite \(smallest eigenvalue {eig}\)"
+    with pytest.raises(InvalidInputError, match=match):
+        Batch(np.zeros((3, 1)), cov, [0, 1, 2], [1, 2, 0])
+    Batch(np.zeros((3, 1)), np.abs(cov) + 1e-300, [0, 1, 2], [1, 2, 0])  # tiny but positive: accepted
+
+
 def test_batch_empty_and_dim() -> None:
     empty = Batch.empty(3)
     assert len(empty) == 0 and empty.dim == 3

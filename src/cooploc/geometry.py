@@ -38,9 +38,12 @@ def rotation(yaw: npt.ArrayLike) -> FloatArray:
 
 
 def to_local(pose: npt.ArrayLike, points: FloatArray) -> FloatArray:
-    """Points (n, 2) in the global frame seen from a sensor at pose [x, y, yaw]: R(θ)ᵀ (p − t)."""
+    """Points (n, 2) in the global frame seen from a sensor at pose [x, y, yaw]: R(θ)ᵀ (p − t).
+
+    Several poses (..., 3) give the points seen from each, (..., n, 2).
+    """
     pose = np.asarray(pose, dtype=float)
-    return (np.asarray(points, dtype=float) - pose[:2]) @ rotation(pose[2])
+    return (np.asarray(points, dtype=float) - pose[..., None, :2]) @ rotation(pose[..., 2])
 
 
 def fit_pose(world: FloatArray, local: FloatArray) -> FloatArray:

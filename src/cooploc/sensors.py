@@ -18,7 +18,11 @@
 - `InfrastructureRadar` — a road-side sensor with pose (t, θ) (position t ∈ R², yaw θ)
   that reports every vehicle in range in its own frame, anonymously (Zhang 2016 §3.2,
   Gulati §II): z = R(θ)ᵀ (H x − t) + w, w ~ N(0, W_radar). The pose is random per
-  run and unknown to the estimators (it is kept in `Truth.sensor_poses`).
+  run and unknown to the estimators (it is kept in `Truth.sensor_poses`). A vehicle is
+  reported when it lies within `max_range` of t and within the field of view: its
+  bearing in the radar's frame, atan2 of the noise-free local position, is at most
+  `field_of_view` (a half-angle about the radar's x axis, the boresight; π: all around,
+  the papers' radar).
 - `Odometry` — displacement of each vehicle since the previous step, in the global
   frame (Gulati eq. 4 for the constant-velocity model): z_k = H x_k − H x_{k−1} + w,
   w ~ N(0, W_s). A vehicle that enters at step k has no odometry row at k.
@@ -333,15 +337,30 @@ class InfrastructureRadar(_PerEntityCovariance):
 
     z = R(θ)ᵀ (H x − t) + w with the sensor pose [t_x, t_y, θ] unknown to estimators.
     Covariances are keyed by the radar's id (or `default_cov`). Only vehicles within
-    `max_range` metres of the radar are reported (``inf``: all).
+    `max_range` metres of the radar (``inf``: all) and within `field_of_view` rad of its
+    boresight (the local x axis; a half-angle in (0, π], π: all around) are reported.
     """
 
     name: ClassVar[str] = "infrastructure-radar"
     max_range: float = float("inf")
+    field_of_view: float = np.pi
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _check_range(self)
+        fov = self.field_of_view
+        if isinstance(fov, bool) or not isinstance(fov, (int, float, np.floating)) or not 0.0 < fov <= np.pi:
+            raise InvalidInputError(
+                f"InfrastructureRadar.field_of_view must be a half-angle in (0, π] rad, got {fov!r}")
+        object.__setattr__(self, "field_of_view", float(fov))
+
+    def in_view(self, local: FloatArray) -> npt.NDArray[np.bool_]:
+        """Which points (n, 2) of the radar's own frame it reports: range and field of view."""
+        local = np.asarray(local, dtype=float).reshape(-1, 2)
+        seen = np.hypot(local[:, 0], local[:, 1]) <= self.max_range
+        if self.field_of_view < np.pi:  # all around needs no bearing (and keeps the point under the radar)
+            seen &= np.abs(np.arctan2(local[:, 1], local[:, 0])) <= self.field_of_view
+        return seen
 
     def measure(
         self,
@@ -364,8 +383,8 @@ class InfrastructureRadar(_PerEntityCovariance):
         states = np.asarray(states, dtype=float)
         H = self.observation_matrix(states.shape[1])
         local = to_local(pose, states @ H.T)
-        in_range = np.hypot(local[:, 0], local[:, 1]) <= self.max_range
-        ids, local = ids[in_range], local[in_range]
+        seen = self.in_view(local)
+        ids, local = ids[seen], local[seen]
         noise_cov = self.covariance_of([sensor_id])[0]
         cov = np.broadcast_to(noise_cov, (ids.size, self.dim, self.dim)).copy()
         z = local + sample_gaussian(cov, rng) if ids.size else np.zeros((0, self.dim))
@@ -376,8 +395,43 @@ class InfrastructureRadar(_PerEntityCovariance):
         return Batch(z, cov, np.full(origin.size, int(sensor_id), dtype=np.int64),
                      np.full(origin.size, -1, dtype=np.int64)), origin
 
+    def measure_many(
+        self,
+        sensor_ids: npt.ArrayLike,
+        poses: npt.ArrayLike,
+        ids: npt.ArrayLike,
+        states: FloatArray,
+        rng: np.random.Generator,
+    ) -> tuple[Batch, IntArray]:
+        """Rows of R radars at once, ids (R,) at poses (R, 3): one vectorised draw for all.
+
+        Each radar reports what `measure` reports (range, field of view, its noise), without
+        missed detections or clutter; the rows come grouped by radar in the order given and
+        shuffled within each radar. Returns the Batch (sensor = the radar, subject = −1) and
+        the origin (M,) of each row.
+        """
+        sensor_ids = np.asarray(sensor_ids, dtype=np.int64).reshape(-1)
+        poses = float_array("poses", poses, (sensor_ids.size, 3))
+        ids = np.asarray(ids, dtype=np.int64)
+        states = np.asarray(states, dtype=float)
+        points = states @ self.observation_matrix(states.shape[1]).T
+        local = to_local(poses, points.reshape(-1, 2))                    # (R, n, 2)
+        radar, vehicle = np.nonzero(self.in_view(local.reshape(-1, 2)).reshape(sensor_ids.size, ids.size))
+        cov = self.covariance_of(sensor_ids)[radar]
+        if not radar.size:
+            z = np.zeros((0, self.dim))
+        elif not self.covariances:  # one covariance for every radar: one factorisation
+            z = local[radar, vehicle] + sample_gaussian(self.default_cov, rng, n=radar.size)
+        else:
+            z = local[radar, vehicle] + sample_gaussian(cov, rng)
+        order = np.lexsort((rng.random(radar.size), radar))   # random order within each radar
+        unknown = np.full(radar.size, -1, dtype=np.int64)
+        return Batch(z[order], cov[order], sensor_ids[radar[order]], unknown), ids[vehicle[order]]
+
     def to_dict(self) -> dict[str, Any]:
-        return {**super().to_dict(), "max_range": self.max_range}
+        # all around is left out, so setups of radars without a field of view keep their setup.json
+        narrow = {"field_of_view": self.field_of_view} if self.field_of_view < np.pi else {}
+        return {**super().to_dict(), "max_range": self.max_range, **narrow}
 
 
 @dataclass(frozen=True)
@@ -471,6 +525,8 @@ class AngleOfArrival:
     def in_view(self, theta: npt.ArrayLike) -> npt.NDArray[np.bool_]:
         """Whether relative angles θ fall in the left (+π/2) or right (−π/2) array's view."""
         theta = np.asarray(theta, dtype=float)
+        if self.field_of_view >= np.pi / 2:  # the two half-planes cover every direction
+            return np.ones(theta.shape, dtype=bool)
         return ((np.abs(wrap_angle(theta - np.pi / 2)) <= self.field_of_view)
                 | (np.abs(wrap_angle(theta + np.pi / 2)) <= self.field_of_view))
 

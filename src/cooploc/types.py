@@ -122,6 +122,13 @@ def check_covariances(name: str, cov: FloatArray) -> None:
     """Raise unless every matrix of the batch `cov (n, d, d)` is symmetric positive definite."""
     if cov.shape[0] == 0:
         return
+    if cov.shape[1:] == (1, 1):  # 1 × 1 (angles): positive definite iff positive, no factorisation
+        bad = np.flatnonzero(cov[:, 0, 0] <= 0)
+        if bad.size:
+            i = int(bad[0])
+            raise InvalidInputError(f"{name}[{i}] is not positive definite (smallest eigenvalue "
+                                    f"{cov[i, 0, 0]:.3g}): {_show(cov[i])}")
+        return
     scale = np.maximum(np.abs(cov).max(axis=(1, 2)), np.finfo(float).tiny)
     asym = np.abs(cov - cov.transpose(0, 2, 1)).max(axis=(1, 2)) > _SYMMETRY_RTOL * scale
     if asym.any():
@@ -526,6 +533,12 @@ class Truth:
         -1 for clutter. For relative measurements (V2F) this is the measured feature.
     sensor_poses : (P, 3) pose [x, y, yaw] (m, m, rad) of each infrastructure sensor
         in `setup.infrastructure_ids` order; (0, 3) when there are none.
+    vehicle_heading : (T, N) true heading α (rad, counter-clockwise from the x axis,
+        wrapped to [−π, π)) of each vehicle, zero where absent, for a scenario that knows
+        it although `Setup.vehicle_layout` has no heading component (SUMO traffic, whose
+        angle-of-arrival rows depend on it); None (the default) otherwise. The truth
+        of an estimator that tracks a heading beside the layout's components; where the
+        layout has a heading, `vehicle_states` holds it and metrics score it from there.
     """
 
     vehicle_ids: IntArray
@@ -536,6 +549,7 @@ class Truth:
     feature_present: npt.NDArray[np.bool_]
     origin: Sequence[Mapping[str, IntArray]]
     sensor_poses: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    vehicle_heading: FloatArray | None = None
 
     def __post_init__(self) -> None:
         vids = int_array("Truth.vehicle_ids", self.vehicle_ids, (None,))
@@ -569,6 +583,9 @@ class Truth:
             for k, step in enumerate(self.origin)
         )
         poses = float_array("Truth.sensor_poses", self.sensor_poses, (None, 3))
+        if self.vehicle_heading is not None:
+            heading = float_array("Truth.vehicle_heading", self.vehicle_heading, (n_steps, vids.size))
+            object.__setattr__(self, "vehicle_heading", heading)
         for name, value in (("vehicle_ids", vids), ("vehicle_states", states),
                             ("vehicle_present", _frozen(present)), ("feature_ids", fids),
                             ("feature_states", fstates), ("feature_present", _frozen(fpresent)),

@@ -18,3 +18,7 @@ def test_sumo_benchmark_writes_json(tmp_path, monkeypatch):
         assert entry["simulate_seconds_per_minute"] > 0 and entry["build_seconds_per_minute"] > 0
         assert entry["steps"] == round(20 / 0.75) and entry["vehicles_mean_present"] > 0
         assert entry["build_peak_memory_bytes"] > 0
+        # the new sensors (issue 19): both builds timed, the cache holds the new arrays
+        assert entry["build_ratio"] > 0 and entry["generation_ratio"] > 0
+        assert entry["cache_bytes"] > entry["cache_bytes_without_new_arrays"] > 0
+        assert entry["radars"] > 0 and entry["rows_per_step"]["aoa"] > 0

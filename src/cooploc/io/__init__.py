@@ -76,7 +76,9 @@ Different kinds (and steps) may have different dz, hence the list columns.
 
 ``truth_vehicles.parquet`` and ``truth_features.parquet`` — true states:
 columns ``step`` (int64), ``id`` (int64), ``present`` (bool) and ``x_0 … x_{d−1}``
-(float64, the state components; the columns fix d even when the table is empty).
+(float64, the state components; the columns fix d even when the table is empty), and
+in ``truth_vehicles.parquet`` an optional ``heading`` (float64, rad: `Truth.vehicle_heading`,
+the true heading of a scenario whose state layout has none; absent: None).
 `save_recording` writes every (step, id) pair, absent ones included; when reading, a
 missing pair is an absent entity with a zero state. Ids are ordered by first
 appearance.

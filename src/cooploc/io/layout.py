@@ -7,6 +7,7 @@ import re
 __all__ = [
     "FORMAT_VERSION",
     "FRAMES_FILE",
+    "HEADING_COLUMN",
     "INFINITY",
     "MEASUREMENTS_FILE",
     "SENSOR_POSES_FILE",
@@ -27,6 +28,8 @@ SENSOR_POSES_FILE = "sensor_poses.parquet"
 
 #: the state columns x_0 … x_{d−1} of the truth tables
 STATE_COLUMN = re.compile(r"x_(\d+)")
+#: the optional column of truth_vehicles.parquet with `Truth.vehicle_heading`
+HEADING_COLUMN = "heading"
 
 #: how setup.json spells infinite floats (strict JSON has no Infinity), e.g. a radar's
 #: unlimited ``max_range``; read back inside ``sensors`` only

@@ -21,6 +21,7 @@ from cooploc.errors import InvalidInputError
 from cooploc.io.layout import (
     FORMAT_VERSION,
     FRAMES_FILE,
+    HEADING_COLUMN,
     INFINITY,
     MEASUREMENTS_FILE,
     SENSOR_POSES_FILE,
@@ -61,14 +62,14 @@ def load_recording(folder: str | Path) -> Recording:
     measurements_table = _read_table(folder, MEASUREMENTS_FILE)
     frames, origin = _load_frames(frames_table, measurements_table)
     n_steps = len(frames)
-    vehicle_ids, vehicle_states, vehicle_present = _load_truth(
-        _read_table(folder, TRUTH_VEHICLES_FILE), TRUTH_VEHICLES_FILE, n_steps)
-    feature_ids, feature_states, feature_present = _load_truth(
+    vehicle_ids, vehicle_states, vehicle_present, heading = _load_truth(
+        _read_table(folder, TRUTH_VEHICLES_FILE), TRUTH_VEHICLES_FILE, n_steps, heading=True)
+    feature_ids, feature_states, feature_present, _ = _load_truth(
         _read_table(folder, TRUTH_FEATURES_FILE), TRUTH_FEATURES_FILE, n_steps)
     poses = _load_poses(_read_table(folder, SENSOR_POSES_FILE), setup.infrastructure_ids)
     try:
         truth = Truth(vehicle_ids, vehicle_states, vehicle_present, feature_ids, feature_states,
-                      feature_present, origin, poses)
+                      feature_present, origin, poses, heading)
     except InvalidInputError as exc:
         raise InvalidInputError(f"truth tables of {str(folder)!r}: {exc}") from exc
     try:
@@ -382,9 +383,10 @@ def _load_frames(
 
 
 def _load_truth(
-    table: pa.Table, file: str, n_steps: int
-) -> tuple[IntArray, FloatArray, np.ndarray]:
-    """ids (N,), states (T, N, d) and presence (T, N) from a truth_*.parquet table."""
+    table: pa.Table, file: str, n_steps: int, *, heading: bool = False
+) -> tuple[IntArray, FloatArray, np.ndarray, FloatArray | None]:
+    """ids (N,), states (T, N, d), presence (T, N) and, with `heading`, the heading (T, N) of
+    the optional column `HEADING_COLUMN` (None without it) from a truth_*.parquet table."""
     step = _numpy(_column(table, file, "step", pa.int64()), np.int64)
     ids = _numpy(_column(table, file, "id", pa.int64()), np.int64)
     present = _numpy(_column(table, file, "present", pa.bool_()), bool)
@@ -418,7 +420,11 @@ def _load_truth(
         states[step, column_of_row, i] = _numpy(
             _column(table, file, f"x_{i}", pa.float64()), np.float64)
     presence[step, column_of_row] = present
-    return entity_ids, states, presence
+    headings = None
+    if heading and HEADING_COLUMN in table.column_names:
+        headings = np.zeros((n_steps, unique.size), dtype=np.float64)
+        headings[step, column_of_row] = _numpy(_column(table, file, HEADING_COLUMN, pa.float64()), np.float64)
+    return entity_ids, states, presence, headings
 
 
 def _load_poses(table: pa.Table, infrastructure_ids: Sequence[int]) -> FloatArray:

@@ -16,6 +16,7 @@ from cooploc.errors import InvalidInputError
 from cooploc.io.layout import (
     FORMAT_VERSION,
     FRAMES_FILE,
+    HEADING_COLUMN,
     INFINITY,
     MEASUREMENTS_FILE,
     SENSOR_POSES_FILE,
@@ -53,8 +54,8 @@ def save_recording(recording: Recording, folder: str | Path) -> Path:
     pq.write_table(frames_table, folder / FRAMES_FILE)
     pq.write_table(measurements_table, folder / MEASUREMENTS_FILE)
     truth = recording.truth
-    pq.write_table(_truth_table(truth.vehicle_ids, truth.vehicle_states, truth.vehicle_present),
-                   folder / TRUTH_VEHICLES_FILE)
+    pq.write_table(_truth_table(truth.vehicle_ids, truth.vehicle_states, truth.vehicle_present,
+                                truth.vehicle_heading), folder / TRUTH_VEHICLES_FILE)
     pq.write_table(_truth_table(truth.feature_ids, truth.feature_states, truth.feature_present),
                    folder / TRUTH_FEATURES_FILE)
     pq.write_table(_poses_table(truth.sensor_poses, recording.setup.infrastructure_ids),
@@ -196,8 +197,10 @@ def _frame_tables(recording: Recording) -> tuple[pa.Table, pa.Table]:
     return frames_table, measurements_table
 
 
-def _truth_table(ids: IntArray, states: FloatArray, present: np.ndarray) -> pa.Table:
-    """Every (step, id) pair, step-major, with presence and the state components."""
+def _truth_table(ids: IntArray, states: FloatArray, present: np.ndarray,
+                 heading: FloatArray | None = None) -> pa.Table:
+    """Every (step, id) pair, step-major, with presence, the state components and the
+    heading kept beside them (`Truth.vehicle_heading`), if any."""
     n_steps, n, dim = states.shape
     columns: dict[str, pa.Array] = {
         "step": pa.array(np.repeat(np.arange(n_steps, dtype=np.int64), n), pa.int64()),
@@ -207,6 +210,8 @@ def _truth_table(ids: IntArray, states: FloatArray, present: np.ndarray) -> pa.T
     flat = states.reshape(n_steps * n, dim)
     for i in range(dim):
         columns[f"x_{i}"] = pa.array(np.ascontiguousarray(flat[:, i]), pa.float64())
+    if heading is not None:
+        columns[HEADING_COLUMN] = pa.array(np.ascontiguousarray(heading).ravel(), pa.float64())
     return pa.table(columns)
 
 

@@ -24,6 +24,10 @@ differs from N, that pseudo-measurement is skipped this step and the filter only
 predicts with it. `Estimate.info` reports ``gnss_rows_used``, ``gnss_rows_gated`` and
 ``skipped`` (kinds skipped this step).
 
+GPS rows must be of the position only (Zhang's internal sensor); a setup whose GNSS rows
+carry more components (the position and velocity fixes of `sumo-*`) is refused with a
+`ConfigError` at construction.
+
 Vehicles that enter get a block from `Setup.vehicle_prior` if they have one (predicted
 to the step), else a belief centred on the GPS row farthest from every predicted vehicle
 with `default_birth_cov` velocity variance; vehicles that leave lose their block.
@@ -43,6 +47,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
+from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, default_birth_cov
 from cooploc.estimators.sme.pseudo_measurement import (
     PseudoMeasurement,
@@ -99,6 +104,10 @@ class _SmeFilter:
         self.ids: IntArray = np.zeros(0, np.int64)
         self._gate = chi2.ppf(params.gate_probability, df=2)
         self._gnss_cols = list(getattr(setup.sensors.get("gnss"), "state_indices", self.pos))
+        if sorted(self._gnss_cols) != sorted(self.pos):  # e.g. SUMO's fixes of position and velocity
+            raise ConfigError(f"{self.name} needs GNSS rows of the position only (eq. 17 sums powers of "
+                              f"positions), got rows of the state components {tuple(self._gnss_cols)} "
+                              f"(position: {tuple(self.pos)})")
 
     # -- to be provided by the filter ------------------------------------------------
     def _moments(self) -> tuple[FloatArray, FloatArray]:

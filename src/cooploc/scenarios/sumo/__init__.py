@@ -21,7 +21,12 @@ What differs from the paper, in short (each module says it in full):
   spread to at most 64; SUMO's pedestrians are mobile features;
 - the GNSS zones: rings C, B, A around the centre of the study area;
 - vehicles enter and leave: those present at step 0 get the paper's fast-start prior,
-  later ones are born from their first GNSS fix.
+  later ones are born from their first GNSS fix;
+- the other papers' sensors on the same traffic (issue 19), each family switched by a
+  key: road-side radars of unknown pose at the busiest junctions (Zhang 2016, Gulati
+  2017), V2V angle of arrival with two side arrays (the PLBP paper), wheel odometry
+  (Gulati eq. 4) and anonymous GNSS (Zhang 2016); SUMO's vehicle angle is the true
+  heading (`Truth.vehicle_heading`).
 
 The package, one job per module:
 
@@ -30,8 +35,10 @@ The package, one job per module:
   libsumo/TraCI loop that yields `Traffic` (`simulate_traffic`);
 - `cache` — `Traffic` on disk, keyed by everything that changes it (`traffic`),
   bounded in size with least-recently-used eviction (`cache_limit`, `evict`);
-- `roads` — static features from the road geometry, GNSS zones (`zone_of`);
-- `scenario` — `generate`: GNSS by zone, V2F, V2V links, priors; the presets.
+- `roads` — static features from the road geometry, GNSS zones (`zone_of`), junctions
+  and the radars' sites (`junctions`, `radar_sites`);
+- `scenario` — `generate` / `lay_sensors`: GNSS by zone, V2F, V2V links, radars,
+  odometry, AoA, priors; the presets.
 
 SUMO (eclipse-sumo, sumolib, libsumo or traci: the ``sumo`` extra) is imported only
 when traffic is simulated; importing this package and listing its presets never
@@ -56,13 +63,14 @@ from cooploc.scenarios.sumo.params import (
     NETWORK_SUFFIXES,
     NETWORKS,
     PEDESTRIAN_ID_OFFSET,
+    RADAR_ID_OFFSET,
     REGULATIONS,
     STATIC_FEATURE_ID_OFFSET,
     TRAFFIC_KEYS,
     SumoParams,
 )
-from cooploc.scenarios.sumo.roads import ZONES, static_features, zone_of
-from cooploc.scenarios.sumo.scenario import PRESETS, TINY_GRID, generate, traffic_seed
+from cooploc.scenarios.sumo.roads import ZONES, junctions, radar_sites, static_features, zone_of
+from cooploc.scenarios.sumo.scenario import PRESETS, STREAMS, TINY_GRID, generate, lay_sensors, traffic_seed
 from cooploc.scenarios.sumo.simulation import (
     SumoNotInstalledError,
     Traffic,
@@ -80,8 +88,10 @@ __all__ = [
     "NETWORK_SUFFIXES",
     "PEDESTRIAN_ID_OFFSET",
     "PRESETS",
+    "RADAR_ID_OFFSET",
     "REGULATIONS",
     "STATIC_FEATURE_ID_OFFSET",
+    "STREAMS",
     "TINY_GRID",
     "TRAFFIC_KEYS",
     "ZONES",
@@ -94,8 +104,11 @@ __all__ = [
     "cache_path",
     "evict",
     "generate",
+    "junctions",
+    "lay_sensors",
     "network_file",
     "network_path",
+    "radar_sites",
     "simulate_traffic",
     "static_features",
     "traffic",

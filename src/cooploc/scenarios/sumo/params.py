@@ -8,15 +8,35 @@ static features go, and the sensors laid on top. Defaults are Brambilla et al. 2
 features, σ^(V2F) = 0.1 m and 0.1 m/s, R_s = 50 m) and §V (R_c = 250 m); the rest
 are our choices, listed in `cooploc.scenarios.sumo`.
 
+The sensors of the other papers (issue 19), each family switched by one key:
+
+- ``radar``: road-side radars of unknown pose at junctions, Zhang et al. 2016 §3.2 and
+  Gulati et al. 2017 §II — W = `radar_variance` I₂ with the papers' 0.1 m²; `n_radars`
+  at the busiest junctions unless `radar_junctions` (SUMO junction ids) or
+  `radar_positions` (x, y pairs) name them; `radar_range` and `radar_field_of_view`
+  (a half-angle; π: all around, the papers' radar, which sees every vehicle) are our
+  choices;
+- ``odometry``: each vehicle's displacement since the previous step, global frame,
+  Gulati eq. (4), W = `odometry_variance` I₂ with the paper's 1 m² (off by default:
+  the estimators of the Brambilla recording fuse it where they find it, see
+  `cooploc.scenarios.sumo.scenario`);
+- ``aoa``: V2V angle of arrival with two side arrays (``papers/plbp_model_notes.md``):
+  σ²_θ = `aoa_variance` = 0.10 rad², Δ = `aoa_field_of_view` = π/2, measured on the
+  V2V links no longer than `aoa_range` = R_c of the AoA paper's Table I, 30 m;
+- ``anonymous_gnss``: the GNSS rows without the identity of their vehicle, as
+  Zhang 2016 §3.2 has them (off by default: Brambilla's GNSS names its vehicle).
+
 Ids of one recording never collide: vehicles keep their randomTrips trip number
 (below `STATIC_FEATURE_ID_OFFSET`), static features count up from
 `STATIC_FEATURE_ID_OFFSET`, pedestrians are their trip number plus
-`PEDESTRIAN_ID_OFFSET`.
+`PEDESTRIAN_ID_OFFSET`, radars count up from `RADAR_ID_OFFSET`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+import numpy as np
 
 from cooploc.budget import Sizes
 from cooploc.params import Params, param
@@ -29,6 +49,7 @@ __all__ = [
     "NETWORK_SUFFIXES",
     "OSM_SUFFIXES",
     "PEDESTRIAN_ID_OFFSET",
+    "RADAR_ID_OFFSET",
     "REGULATIONS",
     "STATIC_FEATURE_ID_OFFSET",
     "TRAFFIC_KEYS",
@@ -48,6 +69,7 @@ NETWORK_SUFFIXES = (".net.xml", ".net.xml.gz", *OSM_SUFFIXES)
 REGULATIONS = ("tlr", "vsr")
 STATIC_FEATURE_ID_OFFSET = 1_000_000
 PEDESTRIAN_ID_OFFSET = 2_000_000
+RADAR_ID_OFFSET = 3_000_000
 @dataclass(frozen=True)
 class SumoParams(Params):
     """Parameters of a SUMO traffic run; defaults follow Brambilla 2020 §VI where it says.
@@ -78,6 +100,21 @@ class SumoParams(Params):
         to the estimators.
     prior_position_std, prior_velocity_std : fast-start prior of step-0 vehicles.
     birth_position_std, birth_velocity_std : `Setup.birth_cov` of entering vehicles.
+    radar : lay road-side radars of unknown pose (kind ``radar``).
+    n_radars : how many, at the busiest junctions (most vehicle-steps within
+        `radar_range`, at least `radar_range` apart), unless named below.
+    radar_junctions : SUMO ids of the junctions to put the radars at instead.
+    radar_positions : (x0, y0, x1, y1, …) network coordinates (m) of the radars instead.
+    radar_range : R (m) within which a radar reports vehicles.
+    radar_field_of_view : half-angle (rad) about the radar's boresight it sees (π: all around).
+    radar_variance : per-axis noise variance (m²) of a radar row (papers: 0.1).
+    odometry : give each vehicle its displacement since the previous step (kind ``odometry``).
+    odometry_variance : per-axis noise variance (m²) of an odometry row (Gulati: 1).
+    aoa : measure V2V angles of arrival with two side arrays (kind ``aoa``).
+    aoa_variance : σ²_θ (rad²). aoa_field_of_view : Δ (rad), half-width of each array's view.
+    aoa_range : longest V2V link (m) with AoA rows (no longer than `communication_range`
+        is used: the angle rides on the link's message).
+    anonymous_gnss : the GNSS rows reach the fusion centre without their vehicle's id.
     """
 
     network: str = param(GRID)
@@ -115,6 +152,20 @@ class SumoParams(Params):
     prior_velocity_std: float = param(0.1, ge=limits.STD_MIN, le=limits.SPEED)
     birth_position_std: float = param(100.0, ge=limits.STD_MIN, le=limits.LENGTH)
     birth_velocity_std: float = param(10.0, ge=limits.STD_MIN, le=limits.SPEED)
+    radar: bool = True
+    n_radars: int = param(4, ge=1, le=1000)  # radars are a few junctions, not a network's every node
+    radar_junctions: tuple[str, ...] = ()
+    radar_positions: tuple[float, ...] = param((), ge=-limits.LENGTH, le=limits.LENGTH)
+    radar_range: float = param(50.0, gt=0, le=limits.LENGTH)
+    radar_field_of_view: float = param(float(np.pi), gt=0, le=float(np.pi), must="lie in (0, π] rad")
+    radar_variance: float = param(0.1, ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE)
+    odometry: bool = False
+    odometry_variance: float = param(1.0, ge=limits.VARIANCE_MIN, le=limits.LENGTH_VARIANCE)
+    aoa: bool = True
+    aoa_variance: float = param(0.10, ge=limits.VARIANCE_MIN, le=limits.ANGLE_VARIANCE)
+    aoa_field_of_view: float = param(float(np.pi / 2), gt=0, le=float(np.pi / 2), must="lie in (0, π/2] rad")
+    aoa_range: float = param(30.0, gt=0, le=limits.LENGTH)
+    anonymous_gnss: bool = False
 
     def validate(self) -> None:
         self.require(self.network in (GRID, *NETWORKS) or self.network.lower().endswith(NETWORK_SUFFIXES),
@@ -123,6 +174,12 @@ class SumoParams(Params):
         self.require(self.duration >= self.dt, "duration", f"be >= dt = {self.dt}")
         self.require(self.zone_radii[0] <= self.zone_radii[1], "zone_radii",
                      "be (r_C, r_B) with 0 < r_C <= r_B")
+        self.require(len(self.radar_positions) % 2 == 0, "radar_positions",
+                     "be x, y pairs (an even number of coordinates, m)")
+        self.require(not (self.radar_junctions and self.radar_positions), "radar_positions",
+                     f"be empty when radar_junctions names the junctions ({', '.join(self.radar_junctions)})")
+        self.require(len(set(self.radar_junctions)) == len(self.radar_junctions), "radar_junctions",
+                     "name each junction once")
 
     def sizes(self) -> Sizes:
         """A floor for `cooploc.budget`: how many vehicles share a step depends on the traffic,

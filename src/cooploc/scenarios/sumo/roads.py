@@ -17,9 +17,20 @@ both come from the network here:
 - Zones (`zone_of`): rings around the centre of the study area (the median of the
   network's traffic lights, where the dense built-up core is): C within
   `zone_radii[0]`, B within `zone_radii[1]`, A beyond.
+- Junctions (`junctions`) and where the road-side radars stand (`radar_sites`). Zhang
+  et al. 2016 and Gulati et al. 2017 have one radar that sees every vehicle of a small
+  scene; in a city, radars stand at junctions, where traffic meets. Candidates are the
+  junctions where three or more roads meet (every junction a road touches, if the
+  network has none such, e.g. a 2 × 2 grid). The busiest are chosen greedily: the most
+  vehicle-steps within `radar_range` over the whole recorded traffic (a property of
+  the traffic, the same for every sensor draw), ties broken by junction id, skipping a
+  junction closer than `radar_range` to one already chosen so that two radars do not
+  watch the same crossing. `radar_junctions` or `radar_positions` name the sites
+  instead.
 
 Complexity: O(L) candidates for L lane-shape vertices and poles; the spreading is
-O(K · L) for K chosen features; `zone_of` is O(n).
+O(K · L) for K chosen features; `zone_of` is O(n); `radar_sites` O(P log P) for the P
+vehicle-steps of the recording (one k-d tree).
 """
 
 from __future__ import annotations
@@ -28,10 +39,11 @@ from typing import Any
 
 import numpy as np
 
+from cooploc.errors import ConfigError
 from cooploc.scenarios.sumo.params import SumoParams
 from cooploc.types import FloatArray, IntArray
 
-__all__ = ["ZONES", "road_edges", "static_features", "zone_of"]
+__all__ = ["ZONES", "junctions", "radar_sites", "road_edges", "static_features", "zone_of"]
 
 ZONES = ("A", "B", "C")
 _KERB_OFFSET = 1.5  # m beyond the right edge of the rightmost lane: signal heads, poles
@@ -110,3 +122,58 @@ def zone_of(positions: FloatArray, centre: FloatArray, zone_radii: tuple[float, 
     """GNSS zone (0 = A, 1 = B, 2 = C) of each position (n, 2): rings around `centre`."""
     distance = np.hypot(*(np.asarray(positions)[:, :2] - centre).T)
     return np.where(distance <= zone_radii[0], 2, np.where(distance <= zone_radii[1], 1, 0))
+
+
+def junctions(net: Any) -> tuple[np.ndarray, FloatArray, IntArray]:
+    """SUMO ids (J,) (sorted), positions (J, 2) and road counts (J,) of the junctions.
+
+    A junction is a node that a road open to passenger cars (`road_edges`) touches; its
+    road count is the number of distinct other junctions such roads join it to.
+    """
+    neighbours: dict[str, set[str]] = {}
+    position: dict[str, tuple[float, float]] = {}
+    for edge in road_edges(net):
+        ends = (edge.getFromNode(), edge.getToNode())
+        if ends[0].getID() == ends[1].getID():  # a loop joins the junction to no other
+            continue
+        for node, other in (ends, ends[::-1]):
+            neighbours.setdefault(node.getID(), set()).add(other.getID())
+            position[node.getID()] = tuple(node.getCoord()[:2])
+    ids = sorted(neighbours)
+    return (np.array(ids, dtype=str), np.array([position[i] for i in ids], dtype=float).reshape(-1, 2),
+            np.array([len(neighbours[i]) for i in ids], dtype=np.int64))
+
+
+def radar_sites(params: SumoParams, junction_ids: np.ndarray, junction_xy: FloatArray,
+                junction_roads: IntArray, vehicle_xy: FloatArray) -> FloatArray:
+    """(R, 2) positions of the road-side radars (module docstring: the busiest junctions).
+
+    Parameters
+    ----------
+    junction_ids, junction_xy, junction_roads : the network's junctions (`junctions`).
+    vehicle_xy : (P, 2) every recorded vehicle position (all steps), for "busiest".
+    """
+    if params.radar_positions:
+        return np.asarray(params.radar_positions, dtype=float).reshape(-1, 2)
+    if params.radar_junctions:
+        unknown = [j for j in params.radar_junctions if j not in set(junction_ids.tolist())]
+        if unknown:
+            shown = ", ".join(junction_ids[:8].tolist()) + (", …" if junction_ids.size > 8 else "")
+            raise ConfigError(f"{params.owner()}: radar_junctions must name junctions of the network "
+                              f"({junction_ids.size} junctions: {shown}), got {unknown[0]!r}")
+        return junction_xy[np.searchsorted(junction_ids, params.radar_junctions)]
+    from scipy.spatial import cKDTree
+
+    candidates = np.flatnonzero(junction_roads >= 3)
+    if candidates.size == 0:
+        candidates = np.arange(junction_ids.size)
+    r = params.radar_range
+    busy = (cKDTree(vehicle_xy).query_ball_point(junction_xy[candidates], r, return_length=True)
+            if vehicle_xy.size else np.zeros(candidates.size, dtype=np.int64))
+    chosen: list[int] = []
+    for i in candidates[np.lexsort((candidates, -np.asarray(busy)))]:  # busiest first, then by id
+        if len(chosen) == params.n_radars:
+            break
+        if not chosen or np.hypot(*(junction_xy[chosen] - junction_xy[i]).T).min() >= r:
+            chosen.append(int(i))
+    return junction_xy[np.array(chosen, dtype=np.int64)].reshape(-1, 2)

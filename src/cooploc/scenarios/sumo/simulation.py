@@ -40,6 +40,14 @@ Choices the paper leaves open
   reports it and the velocity as speed along the heading. Ids are the integer of the
   ``v<n>`` / ``p<n>`` trip id, so a trip has the same id in every run on the same
   demand.
+- Heading: SUMO's own vehicle angle (degrees clockwise from north), recorded as
+  α = wrap(π/2 − angle) (rad, counter-clockwise from the x axis, the convention of
+  `cooploc.geometry`), so that v = speed · (cos α, sin α). It is kept beside the
+  state because the velocity loses it whenever a vehicle stands (at a red light, in a
+  queue), where its angle-of-arrival arrays still point somewhere.
+- Junctions: every node of the study area that a road open to passenger cars touches,
+  with SUMO's junction id, its position and the number of distinct nodes such roads
+  join it to (`roads.junctions`); the road-side radars stand at some of them.
 - Seeds: one traffic seed gives the two randomTrips seeds and SUMO's own seed (driver
   imperfection, departure lanes and speeds) through `numpy.random.SeedSequence`.
 
@@ -62,8 +70,9 @@ from typing import Any
 import numpy as np
 
 from cooploc.errors import CooplocError, InvalidInputError
+from cooploc.geometry import wrap_angle
 from cooploc.scenarios.sumo.params import GRID, NETWORKS, OSM_SUFFIXES, PEDESTRIAN_ID_OFFSET, SumoParams
-from cooploc.scenarios.sumo.roads import road_edges, static_features
+from cooploc.scenarios.sumo.roads import junctions, road_edges, static_features
 from cooploc.types import FloatArray, IntArray
 
 __all__ = ["GRID_OPTIONS", "SumoNotInstalledError", "Traffic", "network_file", "network_path",
@@ -118,6 +127,8 @@ class Traffic:
     vehicle_ids : (N,) ids of the vehicles seen while recording, sorted.
     vehicle_states : (T, N, 4) [p_x, p_y, v_x, v_y]; zero where absent.
     vehicle_present : (T, N).
+    vehicle_heading : (T, N) heading α (rad, counter-clockwise from the x axis, wrapped
+        to [−π, π)) from SUMO's vehicle angle; zero where absent.
     pedestrian_ids, pedestrian_states, pedestrian_present : the same for pedestrians
         (ids already offset by `PEDESTRIAN_ID_OFFSET`).
     static_features : (K, 2) positions of the static features.
@@ -125,6 +136,9 @@ class Traffic:
     centre : (2,) centre of the study area (zone rings).
     bounds : (2, 2) [[x_min, x_max], [y_min, y_max]] of the network.
     signals : (S, 2) positions of the signalised junctions (empty for VSR).
+    junction_ids : (J,) SUMO ids of the junctions (nodes a road touches), sorted.
+    junctions : (J, 2) their positions.
+    junction_roads : (J,) how many distinct junctions roads join each one to.
     """
 
     t: FloatArray
@@ -139,6 +153,10 @@ class Traffic:
     centre: FloatArray
     bounds: FloatArray
     signals: FloatArray
+    vehicle_heading: FloatArray
+    junction_ids: np.ndarray
+    junctions: FloatArray
+    junction_roads: IntArray
 
     def save(self, path: Path) -> None:
         """Atomic write (temporary file + rename), safe with parallel workers."""
@@ -304,20 +322,22 @@ def _trip_number(sumo_id: str) -> int:
     return int(sumo_id[1:].split(".")[0].split("#")[0])
 
 
-def _record(api: Any, ids_of: Any, get: Any, offset: int) -> dict[int, tuple[float, float, float, float]]:
-    """One step of one kind of traffic participant: id → (x, y, v_x, v_y)."""
+def _record(api: Any, ids_of: Any, get: Any, offset: int
+            ) -> dict[int, tuple[float, float, float, float, float]]:
+    """One step of one kind of traffic participant: id → (x, y, v_x, v_y, SUMO angle in rad)."""
     out = {}
     for sumo_id in ids_of():
         x, y = get.getPosition(sumo_id)
         speed, angle = get.getSpeed(sumo_id), np.deg2rad(get.getAngle(sumo_id))
         # SUMO's angle is clockwise from north: v = speed · (sin α, cos α)
-        out[offset + _trip_number(sumo_id)] = (x, y, speed * np.sin(angle), speed * np.cos(angle))
+        out[offset + _trip_number(sumo_id)] = (x, y, speed * np.sin(angle), speed * np.cos(angle), angle)
     return out
 
 
 def _dense(steps: list[dict[int, tuple[float, ...]]]) -> tuple[IntArray, FloatArray, np.ndarray]:
+    """ids (N,), values (T, N, 5) [x, y, v_x, v_y, SUMO angle] (zero where absent), presence (T, N)."""
     ids = np.array(sorted({i for step in steps for i in step}), dtype=np.int64)
-    states = np.zeros((len(steps), ids.size, 4))
+    states = np.zeros((len(steps), ids.size, 5))
     present = np.zeros((len(steps), ids.size), dtype=bool)
     for k, step in enumerate(steps):
         if step:
@@ -339,6 +359,7 @@ def simulate_traffic(params: SumoParams, seed: int) -> Traffic:
         # demand and features from the TLR network: both variants share them
         routes = _demand(params, tlr, folder, seed)
         features, kind = static_features(study_area, params)
+        junction_ids, junction_xy, junction_roads = junctions(study_area)
         net_file = tlr if params.regulation == "tlr" else _unsignalised(tlr, folder, sumolib)
         net = sumolib.net.readNet(str(net_file))
         signals = np.array([n.getCoord() for n in net.getNodes() if n.getType() == "traffic_light"],
@@ -374,6 +395,9 @@ def simulate_traffic(params: SumoParams, seed: int) -> Traffic:
             api.close()
     vids, vstates, vpresent = _dense(vehicles)
     pids, pstates, ppresent = _dense(pedestrians)
-    return Traffic(times, vids, vstates, vpresent, pids, pstates, ppresent, features, kind,
-                   np.asarray(centre, dtype=float), np.array([[x0, x1], [y0, y1]]), signals)
+    # SUMO's angle, clockwise from north, as a heading counter-clockwise from the x axis
+    heading = np.where(vpresent, wrap_angle(np.pi / 2 - vstates[..., 4]), 0.0)
+    return Traffic(times, vids, vstates[..., :4].copy(), vpresent, pids, pstates[..., :4].copy(), ppresent,
+                   features, kind, np.asarray(centre, dtype=float), np.array([[x0, x1], [y0, y1]]),
+                   signals, heading, junction_ids, junction_xy, junction_roads)
 
