@@ -117,8 +117,8 @@ def test_extraction_covers_two_crossing_pairs(recording: Recording) -> None:
 
 
 def test_extract_count_is_heaviest_first_for_separated_components() -> None:
-    """Far-apart components of weight about 1 each: the n heaviest, once each."""
+    """Far-apart components of weight about 1 each: the n heaviest, once each (sorted)."""
     w = np.array([0.7, 1.0, 0.9, 0.2])
     means = np.array([[0.0, 0, 0, 0], [100, 0, 0, 0], [0, 100, 0, 0], [100, 100, 0, 0]])
     mixture = Mixture(np.log(w), means, np.repeat(np.eye(4)[None], 4, 0))
-    np.testing.assert_array_equal(extract_count(mixture, 3, np.array([0, 1]), 4.0), [1, 2, 0])
+    np.testing.assert_array_equal(extract_count(mixture, 3, np.array([0, 1]), 4.0), [0, 1, 2])

@@ -106,7 +106,8 @@ def extract_count(mixture: Mixture, n: int, position: IntArray, gate: float) -> 
     mass near a component is the summed weight of the components near it, and a pick
     explains one unit of the mass near every component near it. The pick is, among the
     components near the one with the most unexplained mass, the one with the most weight
-    of its own not yet picked (each pick takes one unit); ties go to the heavier.
+    of its own not yet picked (each pick takes one unit); ties (within 10⁻⁹) go to the
+    heavier. The picks come back sorted: the slots of a set-valued estimate carry no order.
 
     So a component of weight 2 (two vehicles merged) is picked twice, and where two pairs
     of vehicles cross at once — each pair two components, of weights 1.48 and 0.54 beside
@@ -127,13 +128,22 @@ def extract_count(mixture: Mixture, n: int, position: IntArray, gate: float) -> 
     own = w.copy()                                                         # weight not yet picked
     picks = np.empty(n, dtype=np.int64)
     order = np.argsort(-w, kind="stable")                                 # ties: heavier first
+    rank = np.empty(w.size, dtype=np.int64)
+    rank[order] = np.arange(w.size)
     for t in range(n):  # n picks of O(J) each
-        where = order[int(np.argmax((mass - explained)[order]))]
+        where = _first_best(mass - explained, rank)
         there = np.flatnonzero(near[where])
-        picks[t] = there[int(np.argmax(own[there]))]
+        picks[t] = there[_first_best(own[there], rank[there])]
         own[picks[t]] -= 1.0
         explained += near[:, picks[t]]
-    return picks
+    return np.sort(picks)   # set-valued: slots in component order, whatever the pick order
+
+
+def _first_best(score: FloatArray, rank: IntArray) -> int:
+    """Index of the best `score`, counting scores within 10⁻⁹ of it as ties, which go to
+    the lowest `rank`: round-off (a translated origin) must not decide between equals."""
+    tied = np.flatnonzero(score >= score.max() - 1e-9)
+    return int(tied[np.argmin(rank[tied])])
 
 
 def merge_components(mixture: Mixture, prune_threshold: float, merge_threshold: float,
