@@ -10,6 +10,8 @@ authors) and are re-exported here: `preset_recording`, `with_traffic`,
 
 - `froehle_recording` — a small run of the ``froehle2018`` preset.
 - `drop_rows` — remove the rows of one batch kind at some steps (missing fixes).
+- `with_velocity_fixes` — GNSS rows of the position grown into rows of position and
+  velocity (`sumo-*`'s form), with the same position part.
 - `position_errors` — (T, N) Euclidean position error per step and vehicle.
 - `assert_covariance_close` — a statistical check of samples against a covariance.
 - `load_script` — import a benchmark or example script from its file.
@@ -26,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from cooploc.sensors import GnssPosition
 from cooploc.testing import (
     SMALL_STEPS,
     TRAFFIC_ABSENT,
@@ -38,7 +41,7 @@ from cooploc.testing import (
     with_empty_frames,
     with_traffic,
 )
-from cooploc.types import Estimate, Frame, Recording
+from cooploc.types import Batch, Estimate, Frame, Recording
 
 __all__ = [
     "SMALL_STEPS",
@@ -56,6 +59,7 @@ __all__ = [
     "traffic_recording",
     "with_empty_frames",
     "with_traffic",
+    "with_velocity_fixes",
 ]
 
 #: the repository root (scripts in benchmarks/ and examples/ are not a package)
@@ -98,6 +102,42 @@ def drop_rows(recording: Recording, kind: str, steps: Iterable[int], rows_of: An
         frames.append(frame)
         origins.append(origin)
     return Recording(recording.setup, frames, dataclasses.replace(truth, origin=origins))
+
+
+def with_velocity_fixes(recording: Recording, seed: Any, velocity_std: float = 0.5) -> Recording:
+    """The same run with every GNSS row z_p = p + w_p (covariance R) grown into a row of
+    position and velocity, z = [z_p, v + w_v], as `sumo-*` reports them.
+
+    The covariance of a grown row is [[R, R/2], [R/2, R/4 + σ_v² I]] (σ_v = `velocity_std`):
+    the velocity noise is correlated with the position's, w_v = w_p / 2 + σ_v ε, so only
+    the marginal — not the conditional — of the position is the original row. The position
+    part of every row and covariance stays the original, bit for bit.
+    """
+    rng = np.random.default_rng(seed)
+    setup, truth = recording.setup, recording.truth
+    pos, vel = list(setup.vehicle_layout.position), list(setup.vehicle_layout.velocity)
+    d = len(pos)
+
+    def grown(cov: np.ndarray) -> np.ndarray:
+        out = np.empty((*cov.shape[:-2], 2 * d, 2 * d))
+        out[..., :d, :d], out[..., :d, d:], out[..., d:, :d] = cov, cov / 2, cov / 2
+        out[..., d:, d:] = cov / 4 + velocity_std**2 * np.eye(d)
+        return out
+
+    frames = []
+    for k, frame in enumerate(recording.frames):
+        gnss = frame.batches["gnss"]
+        origin = truth.origin[k]["gnss"]
+        state = truth.vehicle_states[k, np.searchsorted(truth.vehicle_ids, origin)]
+        state[origin < 0] = 0.0  # clutter: noise about the origin
+        w_p = gnss.z - state[:, pos]
+        z_v = state[:, vel] + w_p / 2 + velocity_std * rng.standard_normal(w_p.shape)
+        rows = Batch(np.concatenate([gnss.z, z_v], axis=1), grown(gnss.cov), gnss.sensor, gnss.subject)
+        frames.append(Frame(k, frame.t, frame.vehicles, {**frame.batches, "gnss": rows}, frame.links))
+    model = setup.sensors["gnss"]
+    sensor = GnssPosition({i: grown(c) for i, c in model.covariances.items()},
+                          None if model.default_cov is None else grown(model.default_cov), (*pos, *vel))
+    return Recording(dataclasses.replace(setup, sensors={**setup.sensors, "gnss": sensor}), frames, truth)
 
 
 # ----------------------------------------------------------------------------

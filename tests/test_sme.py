@@ -15,6 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from cooploc.errors import ConfigError
 from cooploc.estimators import make_estimator
 from cooploc.estimators.sme import (
     PseudoMeasurement,
@@ -32,8 +33,9 @@ from cooploc.estimators.sme import (
 from cooploc.geometry import rotation
 from cooploc.particles import systematic_resample
 from cooploc.scenarios import get_preset
+from cooploc.sensors import GnssPosition
 from cooploc.types import Batch, Frame, Recording
-from helpers import assert_valid_estimate
+from helpers import assert_valid_estimate, with_velocity_fixes
 
 MC_SAMPLES = 100_000
 SIGMAS = 6.0  # Monte Carlo bound in standard errors of the sample mean
@@ -344,3 +346,27 @@ def test_pf_without_topology_matches_the_known_association_kf(seed: int) -> None
             if frame.k >= 5:
                 z.append(np.abs(a.mean - b.mean) / np.sqrt(np.diagonal(b.cov, axis1=1, axis2=2)))
     assert np.mean(z) < 0.11, np.mean(z)
+
+
+@pytest.mark.parametrize("name, params", [("sme-pf", SmePFParams(n_particles=200)),
+                                          ("sme-ukf", SmeUKFParams())])
+def test_rows_of_position_and_velocity_enter_as_their_position(name: str, params,
+                                                               short_cv: Recording) -> None:
+    """Rows z = [p, v] + w (`sumo-*`) give exactly what their position marginal gives
+    (module docstring of `filter_base`); they used to be refused at construction."""
+    grown = with_velocity_fixes(short_cv, 7)
+    assert grown.frames[0].batches["gnss"].dim == 4
+    runs = []
+    for rec in (short_cv, grown):
+        est = make_estimator(name, rec.setup, params, np.random.default_rng(0))
+        runs.append([est.step(frame) for frame in rec.frames])
+    for a, b in zip(*runs, strict=True):
+        np.testing.assert_array_equal(a.vehicles.mean, b.vehicles.mean)
+        np.testing.assert_array_equal(a.vehicles.cov, b.vehicles.cov)
+
+
+def test_rows_without_the_position_are_refused_by_name(short_cv: Recording) -> None:
+    velocity_only = GnssPosition(default_cov=np.eye(2), state_indices=(2, 3))
+    setup = dataclasses.replace(short_cv.setup, sensors={**short_cv.setup.sensors, "gnss": velocity_only})
+    with pytest.raises(ConfigError, match=r"sme-ukf needs GNSS rows that hold the position \(0, 1\)"):
+        make_estimator("sme-ukf", setup, SmeUKFParams(), np.random.default_rng(0))

@@ -220,6 +220,12 @@ class Batch:
         rows = np.asarray(rows)
         return Batch(self.z[rows], self.cov[rows], self.sensor[rows], self.subject[rows])
 
+    def components(self, idx: npt.ArrayLike) -> Batch:
+        """The rows cut to their components `idx` (in that order) and the matching block of
+        each covariance: for Gaussian rows z = H x + w, the exact marginal of those components."""
+        idx = np.asarray(idx, dtype=np.int64)
+        return Batch(self.z[:, idx], self.cov[:, idx[:, None], idx[None, :]], self.sensor, self.subject)
+
 
 @dataclass(frozen=True, slots=True)
 class Frame:

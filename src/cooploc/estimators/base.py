@@ -20,6 +20,9 @@ raises `EstimatorError` naming the estimator, the entity and what broke — not 
 vehicles that leave are dropped, vehicles that enter start from their prior in
 `Setup.vehicle_prior` or, failing that, from a broad belief centred on their first
 GNSS fix (`birth_beliefs`).
+
+`gnss_position_part` and `position_fixes` give the estimators that model GNSS as position
+fixes the position-only marginal of rows that hold more (`sumo-*`'s z = [p, v] + w).
 """
 
 from __future__ import annotations
@@ -29,10 +32,10 @@ from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from cooploc.errors import EstimatorError, InvalidInputError
+from cooploc.errors import ConfigError, EstimatorError, InvalidInputError
 from cooploc.gaussian import Gaussians, kf_predict
 from cooploc.params import Params
-from cooploc.types import Estimate, FloatArray, Frame, IntArray, MotionModel, Setup, StateSet
+from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, MotionModel, Setup, StateSet
 
 __all__ = [
     "Estimator",
@@ -40,6 +43,8 @@ __all__ = [
     "birth_beliefs",
     "checked_states",
     "default_birth_cov",
+    "gnss_position_part",
+    "position_fixes",
     "predict_steps",
 ]
 
@@ -92,6 +97,32 @@ def checked_states(estimator: str, entities: str, ids: IntArray, mean: FloatArra
     raise EstimatorError(estimator, f"the covariance of {entities} {int(ids[i])} is no longer symmetric "
                                     f"positive definite (eigenvalues {eig[i, 0]:.3g} … {eig[i, -1]:.3g}): "
                                     "too ill-conditioned for float64")
+
+
+def gnss_position_part(setup: Setup, name: str) -> IntArray | None:
+    """Which components of the setup's GNSS rows are the vehicle's position, in the order of
+    `vehicle_layout.position` (the rows hold the state components `state_indices`).
+
+    None where the rows are the position alone, in that order: callers then use the rows as
+    they come, bit for bit. `ConfigError` naming estimator `name` where a row lacks a
+    position component.
+    """
+    position = list(setup.vehicle_layout.position)
+    cols = list(getattr(setup.sensors.get("gnss"), "state_indices", position))
+    if cols == position:
+        return None
+    missing = [c for c in position if c not in cols]
+    if missing:
+        raise ConfigError(f"{name} needs GNSS rows that hold the position {tuple(position)}, got rows "
+                          f"of the state components {tuple(cols)}")
+    return np.array([cols.index(c) for c in position], dtype=np.int64)
+
+
+def position_fixes(batch: Batch | None, part: IntArray | None) -> Batch | None:
+    """`batch`'s rows as position fixes: z_p = p + w_p with the position block of each
+    covariance — exact for Gaussian rows; the other components (e.g. a velocity) are left
+    out. `part` from `gnss_position_part` (None: the rows are returned as they are)."""
+    return batch if batch is None or part is None else batch.components(part)
 
 
 def default_birth_cov(setup: Setup) -> FloatArray:

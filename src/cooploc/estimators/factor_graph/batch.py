@@ -5,7 +5,9 @@ Paper: Gulati et al., "Graph Based Vehicle Infrastructure Cooperative Localizati
 factor per step — old (eq. 8) or new (eqs. 9–16) — smoothed as one nonlinear least
 squares problem (eq. 17) by Levenberg–Marquardt, as the paper does with GTSAM.
 The graph: `graph.py`; the topology factors: `factors.py` (derivation:
-docs/factor_graph.md).
+docs/factor_graph.md). GNSS rows that hold more than the position (`sumo-*`'s
+z = [p, v] + w) enter as their exact position marginal, the rows' velocity information
+not used (a choice: the graph has positions only; `graph.py`).
 
 Per step and at the end
 -----------------------
@@ -96,7 +98,8 @@ class _BatchGraph:
     def __init__(self, setup: Setup, params: FactorGraphParams, rng: np.random.Generator) -> None:
         self.setup, self.params = setup, params
         least_squares.compile_kernels()  # compile (or load from cache) here, not in smooth()
-        self.data = GraphData(setup, self.kind, params.gap_variance, params.topology_odometry_noise)
+        self.data = GraphData(setup, self.kind, params.gap_variance, params.topology_odometry_noise,
+                              self.name)
         self.filter = PositionFilter()
         self.estimates = EstimateLayout(setup, self.name)
         self.initial: list[FloatArray] = []   # filtered positions: the smoother's start

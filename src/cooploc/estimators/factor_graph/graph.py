@@ -13,7 +13,11 @@ model, as in the paper). Factors, each a Gaussian residual:
 - prior (unary): the first variable of every vehicle's chain gets its prior position
   (the vehicle prior of the setup, or a broad one centred on its first GPS fix:
   `base.birth_beliefs`);
-- GPS (unary, eqs. 6–7): p_t^i − z_t^g, covariance of the fix;
+- GPS (unary, eqs. 6–7): p_t^i − z_t^g, covariance of the fix; the paper's GPS measures
+  the position only. Where the setup's GNSS rows hold more (`sumo-*`'s z = [p, v] + w),
+  the factor takes each row's exact position marginal, z_p = p + w_p with the position
+  block of its covariance (`base.position_fixes`) — a choice: the graph has no velocity
+  variables, so the rows' velocity information is not used;
 - odometry (between, eqs. 4–5): (p_t^i − p_{t−1}^i) − δ_t^i, covariance of the row;
   where a vehicle present at t − 1 and t has no odometry row, a *gap* factor with zero
   displacement and covariance `gap_variance` · I keeps its chain connected;
@@ -41,7 +45,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cooploc.estimators.base import birth_beliefs
+from cooploc.estimators.base import birth_beliefs, gnss_position_part, position_fixes
 from cooploc.estimators.factor_graph.factors import (
     NEW,
     OLD,
@@ -116,7 +120,7 @@ class GraphData:
     """
 
     def __init__(self, setup: Setup, kind: str, gap_variance: float,
-                 odometry_noise: bool = False) -> None:
+                 odometry_noise: bool = False, name: str = "the factor graph") -> None:
         self.setup, self.kind, self.gap_variance = setup, kind, gap_variance
         self.odometry_noise = odometry_noise and kind == NEW
         self.frames: list[FrameFactors] = []
@@ -125,6 +129,7 @@ class GraphData:
         self._ids = np.zeros(0, np.int64)
         self._vars = np.zeros(0, np.int64)
         self._pos = np.array(setup.vehicle_layout.position)
+        self._gnss_part = gnss_position_part(setup, name)
 
     def add_frame(self, frame: Frame) -> FrameFactors:
         """Append the variables and factors of `frame` (see the module docstring)."""
@@ -145,7 +150,7 @@ class GraphData:
             u_var.append(new_vars[~cont])
             u_z.append(born.mean[:, self._pos])
             u_cov.append(born.cov[:, self._pos[:, None], self._pos[None, :]])
-        gnss = frame.batches.get("gnss")
+        gnss = position_fixes(frame.batches.get("gnss"), self._gnss_part)
         rows, at = _rows_of(ids, gnss)
         if rows.size:
             u_var.append(new_vars[at])

@@ -4,7 +4,9 @@ Paper: Gulati et al., "Graph Based Vehicle Infrastructure Cooperative Localizati
 (IV 2017), §III: GPS (eqs. 6–7), odometry (eqs. 4–5) and the new topology factor
 (eqs. 9–16; derivation: docs/factor_graph.md), the graph of `graph.py`. The paper
 solves it in batch (eq. 17); iSAM2 (Kaess et al. 2012) updates the same solution
-incrementally, one frame at a time.
+incrementally, one frame at a time. GNSS rows that hold more than the position
+(`sumo-*`'s z = [p, v] + w) enter as their exact position marginal, the rows' velocity
+information not used (a choice: the graph has positions only; `graph.py`).
 
 `step` adds the frame's variables and factors (`gtsam_backend.gtsam_factors`: native
 GPS and odometry factors, one scalar-arithmetic `CustomFactor` per topology factor)
@@ -77,7 +79,7 @@ class FgIsam2:
         import gtsam
 
         self.setup, self.params = setup, params
-        self.data = GraphData(setup, NEW, params.gap_variance, params.topology_odometry_noise)
+        self.data = GraphData(setup, NEW, params.gap_variance, params.topology_odometry_noise, self.name)
         self.estimates = EstimateLayout(setup, self.name)
         isam_params = gtsam.ISAM2Params()
         isam_params.setRelinearizeThreshold(params.relinearize_threshold)

@@ -24,9 +24,12 @@ differs from N, that pseudo-measurement is skipped this step and the filter only
 predicts with it. `Estimate.info` reports ``gnss_rows_used``, ``gnss_rows_gated`` and
 ``skipped`` (kinds skipped this step).
 
-GPS rows must be of the position only (Zhang's internal sensor); a setup whose GNSS rows
-carry more components (the position and velocity fixes of `sumo-*`) is refused with a
-`ConfigError` at construction.
+Zhang's GPS rows (the internal sensor) are of the position only, and eq. (17) sums powers
+of positions. Where the setup's GNSS rows hold more (`sumo-*`'s z = [p, v] + w, 4×4
+covariance), both filters take each row's exact position marginal, z_p = p + w_p with the
+position block of its covariance (`base.position_fixes`), for the gate, eq. (17) and the
+births — a choice: the rows' velocity information is not used. Rows without the position
+are refused with a `ConfigError` at construction.
 
 Vehicles that enter get a block from `Setup.vehicle_prior` if they have one (predicted
 to the step), else a belief centred on the GPS row farthest from every predicted vehicle
@@ -47,8 +50,13 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
-from cooploc.errors import ConfigError
-from cooploc.estimators.base import birth_beliefs, checked_states, default_birth_cov
+from cooploc.estimators.base import (
+    birth_beliefs,
+    checked_states,
+    default_birth_cov,
+    gnss_position_part,
+    position_fixes,
+)
 from cooploc.estimators.sme.pseudo_measurement import (
     PseudoMeasurement,
     complex_power_sums,
@@ -56,7 +64,7 @@ from cooploc.estimators.sme.pseudo_measurement import (
     topology,
 )
 from cooploc.params import Params, param
-from cooploc.types import Estimate, FloatArray, Frame, IntArray, Setup
+from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup
 
 
 @dataclass(frozen=True)
@@ -103,11 +111,11 @@ class _SmeFilter:
             self.Q = self.Q[0]
         self.ids: IntArray = np.zeros(0, np.int64)
         self._gate = chi2.ppf(params.gate_probability, df=2)
-        self._gnss_cols = list(getattr(setup.sensors.get("gnss"), "state_indices", self.pos))
-        if sorted(self._gnss_cols) != sorted(self.pos):  # e.g. SUMO's fixes of position and velocity
-            raise ConfigError(f"{self.name} needs GNSS rows of the position only (eq. 17 sums powers of "
-                              f"positions), got rows of the state components {tuple(self._gnss_cols)} "
-                              f"(position: {tuple(self.pos)})")
+        self._gnss_part = gnss_position_part(setup, self.name)
+
+    def _gnss(self, frame: Frame) -> Batch | None:
+        """The frame's GNSS rows as position fixes (module docstring)."""
+        return position_fixes(frame.batches.get("gnss"), self._gnss_part)
 
     # -- to be provided by the filter ------------------------------------------------
     def _moments(self) -> tuple[FloatArray, FloatArray]:
@@ -120,7 +128,7 @@ class _SmeFilter:
         beliefs = birth_beliefs(self.setup, born, frame)
         mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
         unknown = np.flatnonzero(~np.isin(born, self.setup.vehicle_prior.ids))
-        gnss = frame.batches.get("gnss")
+        gnss = self._gnss(frame)
         if unknown.size and gnss is not None and len(gnss):
             z = gnss.z
             if predicted.shape[0]:
@@ -130,7 +138,7 @@ class _SmeFilter:
             rows = np.argsort(-dist, kind="stable")[: unknown.size]
             for i, row in zip(unknown[: rows.size], rows, strict=False):
                 mean[i] = 0.0
-                mean[i, self._gnss_cols] = z[row]
+                mean[i, self.pos] = z[row]
                 cov[i] = default_birth_cov(self.setup)
                 cov[i][np.ix_(self.pos, self.pos)] = gnss.cov[row]
         return mean, cov
@@ -144,7 +152,7 @@ class _SmeFilter:
         scale = max(float(np.sqrt(((p - centre) ** 2).sum(-1).mean())), self.params.min_scale)
         info: dict[str, Any] = {"skipped": [], "gnss_rows_used": 0, "gnss_rows_gated": 0}
         y_gnss, gnss_var = None, np.ones(2)
-        gnss = frame.batches.get("gnss")
+        gnss = self._gnss(frame)
         if gnss is not None and len(gnss):
             S = cov[:, self.pos][:, :, self.pos][None] + gnss.cov[:, None]          # (M, N, 2, 2)
             r = gnss.z[:, None, :] - p[None]
