@@ -225,6 +225,28 @@ def test_pf_skips_an_update_whose_row_count_is_not_n(short_cv: Recording) -> Non
     assert np.isfinite(estimate.vehicles.mean).all()
 
 
+@pytest.mark.parametrize("name", ["sme-pf", "sme-ukf"])
+def test_radar_rows_of_two_radars_are_not_one_topology(name: str, short_cv: Recording) -> None:
+    """N radar rows that come from two radars (sumo-*'s road-side radars, each in its own
+    frame) carry no joint topology (eq. 18): the radar pseudo-measurement is skipped."""
+    frame = short_cv.frames[3]
+    radar = frame.batches["radar"]
+    sensor = radar.sensor.copy()
+    sensor[: len(radar) // 2] += 1                                   # half the rows: a second radar
+    split = Batch(radar.z, radar.cov, sensor, radar.subject)
+    params = SmePFParams(n_particles=200) if name == "sme-pf" else SmeUKFParams()
+    est = make_estimator(name, short_cv.setup, params, np.random.default_rng(1))
+    for f in short_cv.frames[:3]:
+        est.step(f)
+    one = make_estimator(name, short_cv.setup, params, np.random.default_rng(1))
+    for f in short_cv.frames[:3]:
+        one.step(f)
+    assert "radar" not in one.step(frame).info["skipped"]
+    estimate = est.step(Frame(frame.k, frame.t, frame.vehicles, {**frame.batches, "radar": split}))
+    assert estimate.info["skipped"] == ["radar"]
+    assert np.isfinite(estimate.vehicles.mean).all()
+
+
 def test_pf_gates_clutter_rows(short_cv: Recording) -> None:
     setup = dataclasses.replace(short_cv.setup, clutter_rate=1.0)
     est = make_estimator("sme-pf", setup, SmePFParams(n_particles=200), np.random.default_rng(1))

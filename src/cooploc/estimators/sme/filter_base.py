@@ -21,8 +21,10 @@ as clutter. Without clutter, N rows are used as they come: gating them would let
 filter that drifted discard the rows that could bring it back. If the count of the
 remaining GPS rows (resp. of the radar rows, which cannot be gated without the pose)
 differs from N, that pseudo-measurement is skipped this step and the filter only
-predicts with it. `Estimate.info` reports ``gnss_rows_used``, ``gnss_rows_gated`` and
-``skipped`` (kinds skipped this step).
+predicts with it; so is the radar's when its rows come from more than one radar (eq. 18
+is the configuration in one radar's frame: rows of several road-side radars of
+`sumo-*`, each in its own unknown frame, have no joint topology). `Estimate.info`
+reports ``gnss_rows_used``, ``gnss_rows_gated`` and ``skipped`` (kinds skipped this step).
 
 Zhang's GPS rows (the internal sensor) are of the position only, and eq. (17) sums powers
 of positions. Where the setup's GNSS rows hold more (`sumo-*`'s z = [p, v] + w, 4×4
@@ -175,7 +177,9 @@ class _SmeFilter:
         y_radar, radar_var = None, 1.0
         radar = frame.batches.get("radar")
         if self.params.use_radar and radar is not None and len(radar):
-            if len(radar) == n and n >= 2:
+            # eq. (18) is the topology of the N vehicles in *one* radar's frame: rows of
+            # several radars (each in its own frame) that happen to number N are not
+            if len(radar) == n and n >= 2 and np.unique(radar.sensor).size == 1:
                 y_radar = float(topology(radar.z)) / scale**2
                 # isotropic per-axis variance of each row: the rotation is unknown, so a
                 # non-isotropic covariance is replaced by its mean eigenvalue
