@@ -15,7 +15,8 @@ It still fails when P⁻ and R differ by more than float64 can hold (P⁻ ≫ R:
 posterior is a small difference of huge numbers; R below the round-off of H P⁻ Hᵀ: S
 is singular). `kf_update` then falls back to the square-root (array) form
 `kf_update_square_root` (Kaminski, Bryson & Schmidt 1971; Grewal & Andrews §7.5): with
-Cholesky factors P⁻ = Sₚ Sₚᵀ, R = Sᵣ Sᵣᵀ, the QR factorisation of the pre-array
+factors P⁻ = Sₚ Sₚᵀ (Cholesky's, or from the eigendecomposition where round-off left P⁻
+only semi-definite: `_square_root`), R = Sᵣ Sᵣᵀ, the QR factorisation of the pre-array
 [[Sᵣ, H Sₚ], [0, Sₚ]] gives the lower-triangular post-array [[S^½, 0], [K̄, P^½]] with
 K = K̄ S^−½ — it never forms S or subtracts, so P stays positive definite. The fallback
 runs only when the Joseph form fails, so well-conditioned updates are bit-for-bit the
@@ -174,7 +175,7 @@ def _kf_update(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray
     if not _is_positive_definite(post.cov):  # P⁻ and R too far apart for the Joseph form
         try:
             return _kf_update_square_root(prior, z, H, R)
-        except np.linalg.LinAlgError:  # P⁻ itself only semi-definite: the Joseph result stands
+        except np.linalg.LinAlgError:  # S singular or R not definite: the Joseph result stands
             pass
     return post, lambda: nis(innovation, S)
 
@@ -219,7 +220,8 @@ def _square_root(P: FloatArray) -> FloatArray:
 def kf_update_square_root(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray) -> Gaussians:
     """The Kalman update of `kf_update` in square-root (array) form (module docstring).
 
-    Same arguments; needs P⁻ and R positive definite. Raises `LinAlgError` where S is
+    Same arguments; needs R positive definite and P⁻ semi-definite (a P⁻ that float64
+    cannot factor by Cholesky is factored by `_square_root`). Raises `LinAlgError` where S is
     singular even so (a zero on the diagonal of S^½).
     """
     return _kf_update_square_root(prior, z, H, R)[0]
