@@ -20,6 +20,10 @@ Measured in one process, on the same recordings (time inside `step` only):
    dense form is not run there (D = 12 096 states: a 1.2 GB covariance and ~10¹² flops
    a step).
 
+Every pass runs with `--threads` BLAS threads (default 1, `backends.limit_threads`), as
+the workers of `cooploc run` run an estimator: on a shared machine OpenBLAS threads that
+spin for a busy core slow the many small factorisations of the city case about twofold.
+
 The machine may be shared: the load average at the start and end is recorded with the
 versions and platform (`common.environment()`); compare the ratios, which come from the
 same process, more than the absolute numbers.
@@ -37,6 +41,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when loaded from the file
 from common import environment, new_estimator, recording, run_steps, write_json
 
+from cooploc.backends import limit_threads
 from cooploc.estimators.oracle_kf import OracleKFParams
 from cooploc.types import Batch, Estimate, Frame, Recording, Truth
 
@@ -171,6 +176,7 @@ def main(argv: list[str] | None = None) -> None:
                         help="steps of the dense form compared per preset (0: none)")
     parser.add_argument("--tiles", type=int, default=CITY_TILES, help="crossroads of the city case (0: none)")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--threads", type=int, default=1, help="BLAS threads (1: as a run's worker)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes: check that the script runs")
     args = parser.parse_args(argv)
     presets, tiles, dense_steps = args.presets, args.tiles, args.dense_steps
@@ -178,11 +184,12 @@ def main(argv: list[str] | None = None) -> None:
     if args.quick:
         presets, tiles, dense_steps = list(PAPER_PRESETS), min(tiles, 3), min(dense_steps, 8)
         overrides = {"froehle2018": {"n_steps": 20}, "brambilla-crossroad": {"n_steps": 8}}
-    results = {"environment": environment(), "presets": {}}
-    for name in presets:
-        results["presets"][name] = time_preset(name, args.seed, dense_steps, overrides.get(name))
-    if tiles:
-        results["city"] = time_city(tiles, args.seed)
+    results = {"environment": environment(), "threads": args.threads, "presets": {}}
+    with limit_threads(args.threads):
+        for name in presets:
+            results["presets"][name] = time_preset(name, args.seed, dense_steps, overrides.get(name))
+        if tiles:
+            results["city"] = time_city(tiles, args.seed)
     write_json(results, args.out)
 
 

@@ -22,7 +22,10 @@ One step
 1. Marginalise out the vehicles that left and the features unseen for
    `feature_timeout` steps.
 2. Predict each component with the block-diagonal motion model, P⁻ = F P Fᵀ + Q block
-   by block: O(D² d) for D states of entities of dimension d, not the O(D³) of a dense F.
+   by block: O(D² d) for D states of entities of dimension d, not the O(D³) of a dense F
+   (`_matrix_kernels.congruence_blocks`: one pass over P, each block F_a P_ab F_bᵀ
+   written to both triangles, so P⁻ is exactly symmetric). Q of every component's
+   entities comes from one call of the motion model.
 3. Append the entering vehicles (alone) and the features seen for the first time
    (`births`), each a component of its own.
 4. Merge the components that this step's V2F rows link (connected components of the
@@ -39,10 +42,15 @@ One step
    O(D² r + r³). The m measurement components of a step overlap on the same
    coordinates (every vehicle has a GNSS row and V2F rows, a feature is seen by
    several vehicles), so r < m, and the cost is below the O(D² m + m³) of a Kalman gain
-   and far below the O(D³) of the dense Joseph form. Where P⁻ and R are so far apart
-   that the posterior of y comes out not positive definite (a small difference of huge
-   numbers), the component takes the stacked-row update of the dense form instead
+   and far below the O(D³) of the dense Joseph form. Where the rows observe more than
+   half of the coordinates (GNSS of position and velocity), P = (P⁻⁻¹ + E J Eᵀ)⁻¹ by two
+   Cholesky inversions (≈ 2 D³) is cheaper. Where P⁻ and R are so far apart that the
+   posterior of y comes out not positive definite (a small difference of huge numbers),
+   the component takes the stacked-row update of the dense form instead
    (`kf_update_nis`: Joseph form, or square-root form where that fails).
+   The information (J, a) of every component is formed in one pass over the step's
+   rows (the components' observed coordinates laid out one after the other), so what
+   is done per component is its dense algebra alone.
 
 Cost per step: Σ over components of O(D_c² r_c + r_c³), plus O(n) for the alone
 vehicles — linear in the number of vehicles while components stay small, and the
@@ -53,11 +61,12 @@ vehicles share features).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cooploc._matrix_kernels import congruence_blocks, mirror_lower
 from cooploc.estimators.base import birth_beliefs, checked_states
 from cooploc.estimators.oracle_kf.births import feature_births
 from cooploc.gaussian import Gaussians, block_diagonal, kf_predict, kf_update_nis, symmetrize
@@ -89,14 +98,31 @@ class Component:
     start: IntArray
     mean: FloatArray
     cov: FloatArray
+    _of_kind: dict[int | None, tuple[IntArray, IntArray]] = field(default_factory=dict, repr=False,
+                                                                  compare=False)
 
     def indices(self, entities: IntArray, dim: int) -> IntArray:
         """(len(entities), dim) state indices of `entities` (positions in this component)."""
         return self.start[entities, None] + np.arange(dim)
 
+    def of_kind(self, kind: int | None, dims: IntArray) -> tuple[IntArray, IntArray]:
+        """(positions, (n, d) state indices) of the entities of `kind` (None: all, where both
+        kinds have one dimension), kept with the component: its entities never change
+        (merging and marginalising make new ones)."""
+        if kind not in self._of_kind:
+            entities = np.arange(self.kind.size) if kind is None else np.flatnonzero(self.kind == kind)
+            dim = int(dims[VEHICLE if kind is None else kind])
+            self._of_kind[kind] = entities, self.indices(entities, dim)
+        return self._of_kind[kind]
+
+
+def _offsets(sizes: IntArray) -> IntArray:
+    """Where each of consecutive blocks of `sizes` starts."""
+    return np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+
 
 def _starts(kind: IntArray, dims: IntArray) -> IntArray:
-    return np.concatenate([[0], np.cumsum(dims[kind])[:-1]]).astype(np.int64)
+    return _offsets(dims[kind])
 
 
 def _singletons(kind: int, ids: IntArray, beliefs: Gaussians, dims: IntArray) -> list[Component]:
@@ -131,10 +157,12 @@ def _merge(parts: Sequence[Component], dims: IntArray) -> Component:
 
 def _blocks_positive_definite(cov: FloatArray, c: Component, dims: IntArray) -> bool:
     """Whether every entity's diagonal block of `cov` (a covariance of `c`) is positive definite."""
-    for kind in (VEHICLE, FEATURE):
-        entities = np.flatnonzero(c.kind == kind)
+    if dims[VEHICLE] == dims[FEATURE]:  # one batch of blocks
+        kinds = [c.of_kind(None, dims)]
+    else:
+        kinds = [c.of_kind(kind, dims) for kind in (VEHICLE, FEATURE)]
+    for entities, idx in kinds:
         if entities.size:
-            idx = c.indices(entities, int(dims[kind]))
             try:
                 np.linalg.cholesky(cov[idx[:, :, None], idx[:, None, :]])
             except np.linalg.LinAlgError:
@@ -142,31 +170,38 @@ def _blocks_positive_definite(cov: FloatArray, c: Component, dims: IntArray) -> 
     return bool(np.isfinite(cov).all())
 
 
-def _spd_inverse_lower(A: FloatArray) -> FloatArray | None:
+def _spd_inverse_lower(A: FloatArray, overwrite: bool = False) -> FloatArray | None:
     """The lower triangle of A⁻¹ (the upper one is garbage) of a symmetric positive definite
     A, of which only the lower triangle is read, by Cholesky (LAPACK potrf, potri); None
-    if A is not positive definite in float64."""
+    if A is not positive definite in float64. `overwrite`: A (Fortran-ordered) may be
+    used as the workspace."""
     from scipy.linalg import lapack
 
-    L, info = lapack.dpotrf(A, lower=True)
+    L, info = lapack.dpotrf(A, lower=True, clean=False, overwrite_a=overwrite)
     if info != 0:
         return None
     inv, info = lapack.dpotri(L, lower=True, overwrite_c=True)
     return inv if info == 0 else None
 
 
-def _inverse_update(P: FloatArray, E: IntArray, J: FloatArray) -> FloatArray | None:
-    """(P⁻¹ + E J Eᵀ)⁻¹: the posterior covariance by adding the information to the inverse."""
+def _inverse_update(P: FloatArray, E: IntArray, J: FloatArray, nonzero: IntArray) -> FloatArray | None:
+    """(P⁻¹ + E J Eᵀ)⁻¹: the posterior covariance by adding the information to the inverse.
+
+    Only J's nonzeros (flat indices `nonzero`; the rows couple few pairs) are added.
+    LAPACK reads and writes the lower triangle of P⁻¹ alone, and E is ascending, so J's
+    lower triangle lands there; what its upper one adds to the upper garbage is never read.
+    """
     info = _spd_inverse_lower(P)
     if info is None:
         return None
-    info[np.ix_(E, E)] += J                                            # Λ = Λ⁻ + E J Eᵀ
-    post = _spd_inverse_lower(info)
+    i, j = np.divmod(nonzero, E.size)
+    info[E[i], E[j]] += J.ravel()[nonzero]                               # Λ = Λ⁻ + E J Eᵀ
+    post = _spd_inverse_lower(info, overwrite=True)
     if post is None:
         return None
-    upper = np.triu_indices_from(post, 1)
-    post[upper] = post.T[upper]
-    return post
+    post = np.asfortranarray(post)
+    mirror_lower(post)
+    return post.T                                                       # symmetric: C order for free
 
 
 @dataclass(frozen=True)
@@ -197,6 +232,10 @@ class ComponentFilter:
         self.dims = np.array([dx, df])
         self.motion = (setup.vehicle_motion, setup.feature_motion)
         self.F = tuple(m.transition_matrix(setup.dt) if m is not None else None for m in self.motion)
+        self._F_blocks = np.zeros((2, self.dims.max(), self.dims.max()))   # per kind, zero padded
+        for kind, F in enumerate(self.F):
+            if F is not None and self.dims[kind]:
+                self._F_blocks[kind, :F.shape[0], :F.shape[1]] = F
         self.Hg = (setup.sensors["gnss"].observation_matrix(dx) if "gnss" in setup.sensors else None)
         v2f = setup.sensors.get("v2f")
         self.Hx = v2f.observation_matrix(dx) if v2f is not None and df else None
@@ -265,8 +304,11 @@ class ComponentFilter:
         """θ⁻ = F θ, P⁻ = F P Fᵀ + Q, block by block (F and Q are block diagonal)."""
         if len(self.alone):
             self.alone = kf_predict(self.alone, self.F[VEHICLE], self._noise(VEHICLE, self.alone.mean))
-        for c in self.components:
-            self._predict_component(c)
+        if not self.components:
+            return
+        noise = [self._component_noise(kind) for kind in (VEHICLE, FEATURE)]
+        for c, Q_vehicles, Q_features in zip(self.components, *noise, strict=True):
+            self._predict_component(c, (Q_vehicles, Q_features))
 
     def _noise(self, kind: int, means: FloatArray) -> FloatArray:
         """Q of entities of `kind` with `means` (n, d): (d, d), or (n, d, d) where it turns with them."""
@@ -277,34 +319,27 @@ class ComponentFilter:
             self._Q[kind] = model.noise_covariance(self.setup.dt)
         return self._Q[kind]
 
-    def _predict_component(self, c: Component) -> None:
-        D, mean = c.mean.size, c.mean
-        blocks = []
+    def _component_noise(self, kind: int) -> list[FloatArray | None]:
+        """Per component, Q of its entities of `kind` (`_noise`), from θ, not θ⁻; one call of
+        the motion model for the entities of every component."""
+        if self.motion[kind] is None or not self.dims[kind]:
+            return [None] * len(self.components)
+        means = [c.mean[c.of_kind(kind, self.dims)[1]] for c in self.components]
+        Q = self._noise(kind, np.concatenate(means))
+        if Q.ndim == 2:
+            return [Q] * len(self.components)
+        return np.split(Q, np.cumsum([m.shape[0] for m in means])[:-1])
+
+    def _predict_component(self, c: Component, noise: tuple[FloatArray | None, FloatArray | None]) -> None:
+        new_mean = c.mean.copy()
+        cov = np.empty_like(c.cov)
+        congruence_blocks(c.cov, c.start, self.dims[c.kind], self._F_blocks[c.kind], cov)   # F P Fᵀ
         for kind in (VEHICLE, FEATURE):
-            entities = np.flatnonzero(c.kind == kind)
+            entities, idx = c.of_kind(kind, self.dims)                                  # (n, d)
             if entities.size:
-                idx = c.indices(entities, int(self.dims[kind]))                        # (n, d)
-                Q = self._noise(kind, mean[idx])                                      # from θ, not θ⁻
-                blocks.append((idx, self.F[kind], Q))
-        new_mean = mean.copy()
-        for idx, F, _ in blocks:
-            new_mean[idx] = mean[idx] @ F.T
-        if self.dims[VEHICLE] == self.dims[FEATURE] or not self.dims[FEATURE]:
-            # one entity dimension d: P as n × n blocks, F_e the F of entity e's kind
-            d, n = int(self.dims[VEHICLE]), c.ids.size
-            F = np.stack(self.F)[c.kind] if self.dims[FEATURE] else self.F[VEHICLE]   # (n, d, d)
-            FP = F @ c.cov.reshape(n, d, D)                                       # block row e: F_e P_e·
-            cov = (F @ np.ascontiguousarray(FP.reshape(D, D).T).reshape(n, d, D)).reshape(D, D).T
-        else:
-            FP = c.cov.copy()
-            for idx, F, _ in blocks:
-                FP[idx] = F @ c.cov[idx]                                          # F P
-            cov = FP.copy()
-            for idx, F, _ in blocks:
-                cov[:, idx] = FP[:, idx] @ F.T                                    # (F P) Fᵀ
-        for idx, _, Q in blocks:
-            cov[idx[:, :, None], idx[:, None, :]] += Q
-        c.mean, c.cov = new_mean, symmetrize(cov)
+                new_mean[idx] = c.mean[idx] @ self.F[kind].T
+                cov[idx[:, :, None], idx[:, None, :]] += symmetrize(noise[kind])        # stays symmetric
+        c.mean, c.cov = new_mean, cov
 
     def _enter(self, frame: Frame, present: IntArray) -> None:
         """Entering vehicles join the alone ones, at their prior or first fix."""
@@ -413,7 +448,7 @@ class ComponentFilter:
                 origin: IntArray | None) -> tuple[float, int]:
         """Update the alone vehicles in one batch and each component with its rows; (NIS, dof)."""
         nis, dof = 0.0, 0
-        by_component: dict[int, list[_Rows]] = {}
+        sensors: list[tuple[IntArray, _Rows]] = []   # per sensor: each row's component, the rows
         if gnss_rows.size:
             gnss = frame.batches["gnss"]
             comp, pos = self._locate(VEHICLE, gnss.subject[gnss_rows])
@@ -421,28 +456,21 @@ class ComponentFilter:
             alone = comp < 0
             if alone.any():
                 nis, dof = self._update_alone(pos[alone], z[alone], R[alone])
-            self._group(by_component, comp, _Rows(z, R, ((pos, self.Hg, VEHICLE),)))
+            coupled = np.flatnonzero(~alone)
+            if coupled.size:
+                sensors.append((comp[coupled], _Rows(z, R, ((pos, self.Hg, VEHICLE),)).take(coupled)))
         if v2f_rows.size:
             v2f = frame.batches["v2f"]
             features = origin[v2f_rows]
             self.last_seen[np.searchsorted(self.feature_ids, features)] = frame.k
-            comp, pos_v = self._locate(VEHICLE, v2f.sensor[v2f_rows])
+            comp, pos_v = self._locate(VEHICLE, v2f.sensor[v2f_rows])   # never alone (`_couple`)
             _, pos_f = self._locate(FEATURE, features)
             terms = ((pos_f, self.Hf, FEATURE), (pos_v, -self.Hx, VEHICLE))          # z = H f − H x + w
-            self._group(by_component, comp, _Rows(v2f.z[v2f_rows], v2f.cov[v2f_rows], terms))
-        for i, groups in by_component.items():
-            n, d = self._update_component(self.components[i], groups)
+            sensors.append((comp, _Rows(v2f.z[v2f_rows], v2f.cov[v2f_rows], terms)))
+        if sensors:
+            n, d = self._update_components(sensors)
             nis, dof = nis + n, dof + d
         return nis, dof
-
-    @staticmethod
-    def _group(by_component: dict[int, list[_Rows]], comp: IntArray, rows: _Rows) -> None:
-        """Add `rows` to the lists of their components (alone vehicles: comp −1, skipped)."""
-        order = np.argsort(comp, kind="stable")
-        labels, first = np.unique(comp[order], return_index=True)
-        for label, part in zip(labels.tolist(), np.split(order, first[1:]), strict=True):
-            if label >= 0:
-                by_component.setdefault(label, []).append(rows.take(part))
 
     def _update_alone(self, pos: IntArray, z: FloatArray, R: FloatArray) -> tuple[float, int]:
         """Joseph-form update of the alone vehicles at `pos`, one GNSS row each."""
@@ -452,71 +480,111 @@ class ComponentFilter:
         self.alone = Gaussians(mean, cov)
         return float(nis.sum()), int(z.size)
 
-    def _update_component(self, c: Component, groups: list[_Rows]) -> tuple[float, int]:
-        """The information-form update of one component (module docstring, step 5)."""
-        J, a, nu_R_nu, E, dof = self._information(c, groups)
+    def _update_components(self, sensors: list[tuple[IntArray, _Rows]]) -> tuple[float, int]:
+        """Update every component that has rows (module docstring, step 5); (NIS, dof).
+
+        The information of the rows, (J, a, Σ νᵀR⁻¹ν) of each component on its observed
+        coordinates y = Eᵀθ, is computed for the rows of all components at once: the
+        components' entities are numbered in one sequence, their observed coordinates laid
+        out one component after the other in one y, and each row's terms scattered into
+        its component's J (stored one r_c × r_c block after the other) and a.
+        """
+        comps = self.components
+        n = len(comps)
+        n_entities = np.array([c.ids.size for c in comps])
+        entity_at = _offsets(n_entities)                          # first entity of each component
+        state_at = _offsets(np.array([c.mean.size for c in comps]))
+        kind = np.concatenate([c.kind for c in comps])
+        start = np.concatenate([c.start for c in comps]) + np.repeat(state_at, n_entities)
+        owner = np.repeat(np.arange(n), n_entities)
+        terms = [[(entity_at[comp] + e, H, k) for e, H, k in rows.terms] for comp, rows in sensors]
+
+        observed = np.unique(np.concatenate([e for t in terms for e, _, _ in t]))
+        widths = np.array([cols.size for cols in self.observed_cols])[kind[observed]]
+        slot = np.full(kind.size, -1)
+        slot[observed] = _offsets(widths)                         # each observed entity's place in y
+        E = np.empty(int(widths.sum()), dtype=np.int64)           # ascending within each component
+        for k, cols in enumerate(self.observed_cols):
+            entities = observed[kind[observed] == k]
+            if entities.size:
+                at = (slot[entities, None] + np.arange(cols.size)).ravel()
+                E[at] = (start[entities, None] + cols).ravel()
+        y = np.concatenate([c.mean for c in comps])[E]
+        r = np.bincount(owner[observed], widths, minlength=n).astype(np.int64)
+        y_at, J_at = _offsets(r), _offsets(r * r)
+        # J entry (u, t) of y, both in component c: J_at[c] + (u − y_at[c]) r[c] + (t − y_at[c])
+        J_base = J_at - y_at * (r + 1)
+
+        J_idx, J_val, a_idx, a_val = [], [], [], []
+        nu_R_nu, dof = np.zeros(n), np.zeros(n, dtype=np.int64)
+        for (comp, rows), t in zip(sensors, terms, strict=True):
+            blocks = []
+            for e, H, k in t:
+                Hc = H[:, self.observed_cols[k]]                                 # H on y
+                blocks.append((slot[e, None] + np.arange(Hc.shape[1]), Hc))      # (rows, w) places in y
+            nu = rows.z - sum(np.einsum("ij,nj->ni", Hc, y[idx]) for idx, Hc in blocks)   # ν = z − H θ⁻
+            R_inv = np.linalg.solve(rows.R, np.eye(rows.z.shape[1]))              # R⁻¹ (information)
+            R_nu = np.einsum("nij,nj->ni", R_inv, nu)                            # R⁻¹ ν
+            nu_R_nu += np.bincount(comp, np.sum(nu * R_nu, axis=1), minlength=n)
+            dof += np.bincount(comp, minlength=n) * rows.z.shape[1]
+            base, scale = J_base[comp][:, None, None], r[comp][:, None, None]
+            for idx_t, H_t in blocks:
+                a_idx.append(idx_t.ravel())
+                a_val.append(np.einsum("it,ni->nt", H_t, R_nu).ravel())          # Hᵀ R⁻¹ ν
+                R_H = R_inv @ H_t                                                # R⁻¹ H_t
+                for idx_u, H_u in blocks:
+                    J_idx.append((base + idx_u[:, :, None] * scale + idx_t[:, None, :]).ravel())
+                    J_val.append(np.einsum("iu,nit->nut", H_u, R_H).ravel())     # H_uᵀ R⁻¹ H_t
+        J_all = np.bincount(np.concatenate(J_idx), np.concatenate(J_val), minlength=int((r * r).sum()))
+        a_all = np.bincount(np.concatenate(a_idx), np.concatenate(a_val), minlength=E.size)
+        nonzero = np.flatnonzero(J_all)
+        nonzero_at = np.searchsorted(nonzero, np.append(J_at, J_all.size))
+
+        nis, total_dof = 0.0, 0
+        for i in np.flatnonzero(r).tolist():
+            y_part = slice(y_at[i], y_at[i] + r[i])
+            J = J_all[J_at[i]:J_at[i] + r[i] * r[i]].reshape(r[i], r[i])
+            J_nonzero = nonzero[nonzero_at[i]:nonzero_at[i + 1]] - J_at[i]
+            reduction = self._update_component(comps[i], J, J_nonzero, a_all[y_part], E[y_part] - state_at[i])
+            if reduction is not None:
+                nis += float(nu_R_nu[i]) - reduction                    # νᵀ S⁻¹ ν, Woodbury
+            else:  # P⁻ ≫ R: round-off ate the posterior; the stacked rows of the dense form
+                nis += self._update_component_rows(
+                    comps[i], [rows.take(np.flatnonzero(comp == i)) for comp, rows in sensors])
+            total_dof += int(dof[i])
+        return nis, total_dof
+
+    def _update_component(self, c: Component, J: FloatArray, J_nonzero: IntArray, a: FloatArray,
+                          E: IntArray) -> float | None:
+        """The information-form update of one component (module docstring, step 5), J given
+        with the flat indices of its nonzeros; returns
+        (G a)ᵀ b, what the NIS is below Σ νᵀR⁻¹ν, or None (`c` untouched) where round-off
+        ate the posterior."""
         P = c.cov
         r = E.size
         if 2 * r > P.shape[0]:  # most coordinates observed: two inversions are cheaper
-            post = _inverse_update(P, E, J)
-            if post is not None and _blocks_positive_definite(post, c, self.dims):
-                PE = post[:, E]                                        # P E, posterior
-                c.mean = c.mean + PE @ a                               # θ = θ⁻ + P E a
-                c.cov = post
-                return nu_R_nu - float(a @ (PE[E] @ a)), dof           # Eᵀ P E = G (I + J G)⁻¹
-            return self._update_component_rows(c, groups)
+            post = _inverse_update(P, E, J, J_nonzero)
+            if post is None or not _blocks_positive_definite(post, c, self.dims):
+                return None
+            a_full = np.zeros(P.shape[0])
+            a_full[E] = a
+            shift = post @ a_full                                      # P E a, posterior P
+            c.mean = c.mean + shift                                    # θ = θ⁻ + P E a
+            c.cov = post
+            return float(a_full @ shift)                               # Eᵀ P E = G (I + J G)⁻¹
         PE = P[:, E]                                                   # P⁻ E   (D, r)
         G = PE[E]                                                      # Eᵀ P⁻ E
         X = np.linalg.solve(np.eye(r) + J @ G, np.column_stack([a, J]))
         b, M = X[:, 0], symmetrize(X[:, 1:])                           # (I + J G)⁻¹ [a, J]
         cov = symmetrize(P - (PE @ M) @ PE.T)                          # P = P⁻ − P⁻E M Eᵀ P⁻
         if not _blocks_positive_definite(cov, c, self.dims):
-            return self._update_component_rows(c, groups)  # P⁻ ≫ R: round-off ate the posterior
+            return None
         c.mean = c.mean + PE @ b                                       # θ = θ⁻ + P⁻E b
         c.cov = cov
-        return nu_R_nu - float((G @ a) @ b), dof
+        return float((G @ a) @ b)
 
-    def _information(self, c: Component, groups: list[_Rows]
-                     ) -> tuple[FloatArray, FloatArray, float, IntArray, int]:
-        """(J, a, Σ νᵀR⁻¹ν, E, m) of the rows of one component on its observed coordinates."""
-        observed = np.unique(np.concatenate([e for g in groups for e, _, _ in g.terms]))
-        widths = np.array([c.size for c in self.observed_cols])
-        w = widths[c.kind[observed]]
-        at = np.full(c.ids.size, -1)
-        at[observed] = np.concatenate([[0], np.cumsum(w)[:-1]])          # start of each in y
-        r = int(w.sum())
-        E = np.empty(r, dtype=np.int64)
-        for kind, cols in enumerate(self.observed_cols):
-            entities = observed[c.kind[observed] == kind]
-            if entities.size:
-                E[(at[entities, None] + np.arange(cols.size)).ravel()] = (
-                    c.start[entities, None] + cols).ravel()
-        y = c.mean[E]
-        J_at, J_val, a_at, a_val = [], [], [], []
-        nu_R_nu, dof = 0.0, 0
-        for g in groups:
-            blocks = []
-            for e, H, kind in g.terms:
-                Hc = H[:, self.observed_cols[kind]]                              # H on y
-                blocks.append((at[e, None] + np.arange(Hc.shape[1]), Hc))        # (n, w) indices
-            nu = g.z - sum(np.einsum("ij,nj->ni", Hc, y[idx]) for idx, Hc in blocks)   # ν = z − H θ⁻
-            R_inv = np.linalg.solve(g.R, np.eye(g.z.shape[1]))                  # R⁻¹ (information)
-            R_nu = np.einsum("nij,nj->ni", R_inv, nu)                           # R⁻¹ ν
-            nu_R_nu += float(np.sum(nu * R_nu))
-            dof += nu.size
-            for idx_t, H_t in blocks:
-                a_at.append(idx_t.ravel())
-                a_val.append(np.einsum("it,ni->nt", H_t, R_nu).ravel())         # Hᵀ R⁻¹ ν
-                R_H = R_inv @ H_t                                                   # R⁻¹ H_t
-                for idx_u, H_u in blocks:
-                    J_at.append((idx_u[:, :, None] * r + idx_t[:, None, :]).ravel())
-                    J_val.append(np.einsum("iu,nit->nut", H_u, R_H).ravel())    # H_uᵀ R⁻¹ H_t
-        J = np.bincount(np.concatenate(J_at), np.concatenate(J_val), minlength=r * r).reshape(r, r)
-        a = np.bincount(np.concatenate(a_at), np.concatenate(a_val), minlength=r)
-        return J, a, nu_R_nu, E, dof
-
-    def _update_component_rows(self, c: Component, groups: list[_Rows]) -> tuple[float, int]:
-        """The dense form's update of one component: every row stacked, `kf_update_nis`."""
+    def _update_component_rows(self, c: Component, groups: list[_Rows]) -> float:
+        """The dense form's update of one component: every row stacked, `kf_update_nis`; its NIS."""
         D = c.mean.size
         H_rows, z_rows, R_blocks = [], [], []
         for g in groups:
@@ -532,7 +600,7 @@ class ComponentFilter:
         post, nis = kf_update_nis(Gaussians(c.mean[None], c.cov[None]), z[None],
                                   np.concatenate(H_rows), block_diagonal(*R_blocks))
         c.mean, c.cov = post.mean[0], post.cov[0]
-        return float(nis[0]), z.size
+        return float(nis[0])
 
     # -- estimate -------------------------------------------------------------------
 
@@ -541,9 +609,8 @@ class ComponentFilter:
         parts[VEHICLE].append((self.alone_ids, self.alone.mean, self.alone.cov))
         for c in self.components:
             for kind in (VEHICLE, FEATURE):
-                entities = np.flatnonzero(c.kind == kind)
+                entities, idx = c.of_kind(kind, self.dims)
                 if entities.size:
-                    idx = c.indices(entities, int(self.dims[kind]))
                     cov = c.cov[idx[:, :, None], idx[:, None, :]]
                     parts[kind].append((c.ids[entities], c.mean[idx], cov))
         states = []
