@@ -189,7 +189,8 @@ class _Radars:
 
 def _lay(params: SumoParams, run: Traffic, streams: Sequence[np.random.Generator]) -> Recording:
     """The recording of `run` with the generators of `STREAMS` (the traffic one unused here)."""
-    _, rng_prior, rng_gnss, rng_v2f, rng_pose, rng_radar, rng_odometry, rng_aoa, rng_order, rng_anchor = streams
+    (_, rng_prior, rng_gnss, rng_v2f, rng_pose, rng_radar, rng_odometry, rng_aoa, rng_order,
+     rng_anchor) = streams
     T, dt = params.n_steps, params.dt
     layout = StateLayout.position_velocity(2)
     state = (0, 1, 2, 3)
