@@ -230,7 +230,7 @@ def _lay(params: SumoParams, run: Traffic, streams: Sequence[np.random.Generator
     rng_pick, rng_anchor_fix = rng_anchor.spawn(2)
     is_anchor = rng_pick.random(run.vehicle_ids.size) < params.aoa_anchor_share
     anchor = None
-    if aoa is not None and is_anchor.any():
+    if aoa is not None and params.aoa_anchor_share > 0:
         anchor = GnssPosition(default_cov=np.diag([params.anchor_position_std**2] * 2
                                                   + [params.anchor_heading_std**2]), state_indices=_AOA_STATE)
         sensors["anchor"] = anchor
