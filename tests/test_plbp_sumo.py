@@ -6,6 +6,8 @@ Oracles and properties:
   standing vehicle gets a spread heading, finite and positive definite.
 - The anchors' fixes are the true [p_x, p_y, α] plus noise of the anchor covariance
   (moments over many draws), and a share of the vehicles.
+- `tracking="own-fixes"` carries the GNSS filter's beliefs (equal to `gnss-kf`'s) and
+  reports the AoA solve on them.
 - A hand-made traffic (no SUMO needed, `sumo.lay_sensors`): vehicles enter and leave, one
   stands still, one is far from all others (no AoA link) and one pair sees no anchor.
   Every estimate is finite; the far vehicle's estimate equals `gnss-kf`'s (same motion
@@ -24,6 +26,7 @@ import pytest
 
 from cooploc.errors import ConfigError
 from cooploc.estimators import make_estimator
+from cooploc.estimators.plbp import PLBPParams
 from cooploc.estimators.plbp.heading import with_velocity_heading
 from cooploc.gaussian import Gaussians
 from cooploc.geometry import wrap_angle
@@ -180,6 +183,26 @@ def test_anchor_links_beat_the_gnss_filter() -> None:
             den += np.sum(ref.err_pos[np.isin(ref.id, [4, 7])] ** 2)
         ratios[name] = np.sqrt(num / den)
     assert ratios["plbp"] < 0.9 and ratios["prior-lbp"] < 0.9, ratios
+
+
+def test_own_fixes_carry_the_gnss_filter_and_solve_on_it(scene: Recording) -> None:
+    # tracking="own-fixes": what is carried from step to step is each vehicle's filter of
+    # its own fixes, so for the non-anchors it is gnss-kf's belief at every step, while
+    # the reported estimate is the AoA solve on it
+    estimator = make_estimator("plbp", scene.setup, PLBPParams(tracking="own-fixes"),
+                               np.random.default_rng(0))
+    reference = run_estimator("gnss-kf", scene)
+    moved = False
+    for frame, g in zip(scene.frames, reference, strict=True):
+        e = estimator.step(frame)
+        carried = estimator.vehicles.beliefs
+        plain = e.vehicles.ids != 1                                      # 1 is the anchor
+        np.testing.assert_allclose(carried.mean[plain], g.vehicles.mean[plain], rtol=SAME_FILTER_RTOL,
+                                   atol=SAME_FILTER_RTOL * np.abs(g.vehicles.mean).max())
+        np.testing.assert_allclose(carried.cov[plain], g.vehicles.cov[plain], rtol=SAME_FILTER_RTOL,
+                                   atol=SAME_FILTER_RTOL * np.abs(g.vehicles.cov).max())
+        moved |= not np.allclose(e.vehicles.mean[plain], g.vehicles.mean[plain], rtol=1e-3)
+    assert moved                                                         # the AoA did change the estimates
 
 
 @pytest.mark.parametrize("name", ["plbp", "prior-lbp"])

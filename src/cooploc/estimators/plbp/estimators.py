@@ -16,7 +16,11 @@ Choices the paper leaves open:
   information form with that step's `"gnss"` rows (a fresh position/heading fix,
   angular components moved onto the branch of the prediction); the result is the prior
   of this step's solve. Vehicles that enter start from `Setup.vehicle_prior` or their
-  first fix (`estimators.base.birth_beliefs`).
+  first fix (`estimators.base.birth_beliefs`). Gaussian BP treats the priors of a step
+  as independent, but a carried posterior is correlated with its neighbours' through
+  the AoA of earlier steps, so over a long run the same angles are counted again and
+  again (the beliefs grow over-confident). `tracking="own-fixes"` carries each vehicle's
+  filter of its own fixes instead and solves the AoA on it as a snapshot every step.
 - AoA rows naming a vehicle that is not present are ignored.
 - Output headings are wrapped to [−π, π).
 - Anchors (beyond the snapshot's priors): a scenario may give its anchors a fix of
@@ -75,6 +79,12 @@ class PLBPParams(Params):
     central_weight : w₀ of the unscented points.
     heading_slip_std : σ_s (rad), spread of the heading about the velocity direction, where
         the heading comes from the velocity (a layout without a heading; `plbp.heading`).
+    tracking : what a step's prior is. ``"posterior"`` (the default, as `aoa-grid-tracking`
+        has it): the previous step's posterior, predicted, updated with the step's own fixes.
+        ``"own-fixes"``: each vehicle's own filter of its fixes (GNSS, and an anchor's
+        fix), predicted and updated the same way; the AoA solve runs on it every step and
+        its posterior is reported but not carried on, so the AoA of one step is never
+        counted again at a later one (module docstring).
     """
 
     linearization_iterations: int = param(5, ge=1)
@@ -82,6 +92,7 @@ class PLBPParams(Params):
     sigma_points: Literal["unscented", "cubature"] = "unscented"
     central_weight: float = param(1.0 / 3.0, ge=0, lt=1)
     heading_slip_std: float = param(0.01, gt=0, le=np.pi)
+    tracking: str = param("posterior", choices=("posterior", "own-fixes"))
 
 
 @dataclass(frozen=True)
@@ -136,17 +147,18 @@ class PLBP:
         self._started = False
 
     def step(self, frame: Frame) -> Estimate:
+        p = self.params
         born = self.vehicles.sync(frame)
         beliefs = self._predict(self.vehicles.beliefs, ~born)
         self._started = True
         beliefs = self._fix(beliefs, frame.batches.get("gnss"), self.setup.sensors.get("gnss"))
         if self._velocity is not None:
-            p = self.params
             beliefs = with_velocity_heading(beliefs, self._velocity, p.heading_slip_std**2,
                                             method=p.sigma_points, central_weight=p.central_weight)
         beliefs = self._fix(beliefs, frame.batches.get("anchor"), self.setup.sensors.get("anchor"))
+        dx = self.setup.vehicle_layout.dim
+        own = Gaussians(beliefs.mean[:, :dx], beliefs.cov[:, :dx, :dx])   # the layout's marginal
         links = link_factors(frame.batch("aoa", 1), self.vehicles.ids)
-        p = self.params
         posterior, iterates = plbp_solve(
             beliefs, links, self.sensor, linearization_iterations=p.linearization_iterations,
             bp_iterations=p.bp_iterations, posterior=self.posterior, method=p.sigma_points,
@@ -158,9 +170,8 @@ class PLBP:
         cov = posterior.cov
         if self._velocity is not None:   # marginalise the heading out again
             info["heading"] = mean[:, self._heading]
-            dx = self.setup.vehicle_layout.dim
             mean, cov = mean[:, :dx], cov[:, :dx, :dx]
-        self.vehicles.beliefs = Gaussians(mean, cov)
+        self.vehicles.beliefs = Gaussians(mean, cov) if p.tracking == "posterior" else own
         return Estimate(checked_states(self.name, "vehicle", self.vehicles.ids, mean, cov), info=info)
 
     def _predict(self, beliefs: Gaussians, moving: np.ndarray) -> Gaussians:

@@ -48,13 +48,19 @@ The sensors of the other papers (issue 19), each switched off by its key:
   `sensor` = receiver, `subject` = transmitter. α_i is SUMO's own vehicle angle
   (`Traffic.vehicle_heading`).
 
+- AoA anchors (kind ``anchor``, with ``aoa``): a share `aoa_anchor_share` of the run's
+  vehicles (the AoA paper's 6 of 51 by default), drawn once per run, know their position
+  and heading: every step a fix z = [p_x, p_y, α] + w, w ~ N(0, diag(σ_p², σ_p², σ_α²)),
+  σ_p = `anchor_position_std` = 0.1 m, σ_α = `anchor_heading_std` = 0.01 rad (the notes'
+  anchor prior), `sensors.GnssPosition` over (0, 1, 4). Only the AoA estimators read it.
+
 Heading. The vehicle state stays [p_x, p_y, v_x, v_y] (`StateLayout.position_velocity`),
 so that the estimators that do not use a heading see exactly what they saw before the
 AoA rows existed. The true heading is kept in `Truth.vehicle_heading` (T, N) for
-scoring, and the AoA model in `Setup.sensors["aoa"]` has `state_indices` (0, 1, 4):
-positions from the layout, the heading as a fifth component [p_x, p_y, v_x, v_y, α]
-that an AoA estimator must track beside the layout (the setup's 4-component layout has
-no heading, which `plbp` refuses today).
+scoring, and the AoA and anchor models in `Setup.sensors` have `state_indices`
+(0, 1, 4): positions from the layout, the heading as a fifth component
+[p_x, p_y, v_x, v_y, α] that an AoA estimator adds beside the layout (`plbp` takes it
+from the direction of the velocity, `cooploc.estimators.plbp.heading`).
 
 - Motion models given to the estimators: CV (Fröhle eqs. 28–29) with
   `vehicle_noise_density`; one CV with `feature_noise_density` (pedestrian-like) for
@@ -79,11 +85,11 @@ by `oracle-kf`, the presets' bound, which reads GNSS and V2F only. The factor gr
 need it: ``--set odometry=true``. Anonymous GNSS replaces the identified rows that the
 GNSS baseline and the V2F methods need, so it is opt-in too.
 
-Randomness: `rng` is split into nine children, in this order: traffic seed, prior,
+Randomness: `rng` is split into ten children, in this order: traffic seed, prior,
 GNSS, V2F (the four of the Brambilla recording, unchanged), radar poses, radar noise,
-odometry, AoA, anonymous-GNSS order. Every family draws from its own child, so
-switching one on or off leaves every other row bit for bit as it was; `traffic_seed`
-reproduces the first child.
+odometry, AoA, anonymous-GNSS order, AoA anchors (which vehicles, then their fixes).
+Every family draws from its own child, so switching one on or off leaves every other
+row bit for bit as it was; `traffic_seed` reproduces the first child.
 
 Complexity: a frame costs O((n + K) log(n + K) + E + M) for n vehicles present, K
 features, E links and M V2F rows (k-d trees, `geometry.links_within` and
