@@ -15,6 +15,7 @@ authors) and are re-exported here: `preset_recording`, `with_traffic`,
 - `position_errors` — (T, N) Euclidean position error per step and vehicle.
 - `assert_covariance_close` — a statistical check of samples against a covariance.
 - `load_script` — import a benchmark or example script from its file.
+- `make_traffic` — a SUMO `Traffic` made by hand (no SUMO needed), for `sumo.lay_sensors`.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from cooploc.geometry import wrap_angle
+from cooploc.scenarios.sumo import Traffic
 from cooploc.sensors import GnssPosition
 from cooploc.testing import (
     SMALL_STEPS,
@@ -193,3 +196,26 @@ def assert_covariance_close(samples: np.ndarray, cov: np.ndarray, mean: np.ndarr
         scale = np.sqrt(eigval.max())
         np.testing.assert_allclose(null, 0.0, rtol=0, atol=1e-9 * scale,
                                    err_msg="samples leave the range of a singular cov")
+
+
+def make_traffic(states: np.ndarray, present: np.ndarray, heading: np.ndarray | None = None, *,
+                 features: np.ndarray | None = None,
+                 junctions: tuple[list[str], np.ndarray, list[int]] | None = None) -> Traffic:
+    """A `Traffic` by hand: vehicle states (T, N, 4) with presence (T, N), headings (T, N)
+    (default: along the velocity), static features (K, 2), junctions (ids, (J, 2), roads)."""
+    T, N = present.shape
+    states = np.where(present[..., None], states, 0.0)
+    if heading is None:
+        heading = np.arctan2(states[..., 3], states[..., 2])
+    heading = np.where(present, wrap_angle(heading), 0.0)
+    features = np.zeros((0, 2)) if features is None else np.asarray(features, dtype=float)
+    ids, xy, roads = junctions if junctions is not None else (["j0"], np.zeros((1, 2)), [4])
+    return Traffic(
+        t=np.arange(T, dtype=float), vehicle_ids=np.arange(N, dtype=np.int64) * 3 + 1,
+        vehicle_states=states, vehicle_present=present,
+        pedestrian_ids=np.zeros(0, dtype=np.int64), pedestrian_states=np.zeros((T, 0, 4)),
+        pedestrian_present=np.zeros((T, 0), dtype=bool), static_features=features,
+        static_kind=np.full(features.shape[0], 2, dtype=np.int64), centre=np.zeros(2),
+        bounds=np.array([[-1e3, 1e3], [-1e3, 1e3]]), signals=np.zeros((0, 2)), vehicle_heading=heading,
+        junction_ids=np.array(ids, dtype=str), junctions=np.asarray(xy, dtype=float).reshape(-1, 2),
+        junction_roads=np.asarray(roads, dtype=np.int64))

@@ -8,8 +8,7 @@ that can use nothing such a recording offers must instead be refused by
 `registry.construct` with a `ConfigError` that says so: "needs the measurement kinds …"
 when a required sensor is missing, "can use nothing this scenario offers" when none of
 the sensors is one it reads, or the estimator's own "needs …" when the sensors are
-there but not in the form it models (issue 19: `plbp` needs a heading in the vehicle
-layout, the SME filters GNSS rows of the position only).
+there but not in the form it models.
 
 Three checks cannot apply to SUMO recordings and skip with their reason:
 ``enter_and_leave`` edits a preset's ``n_vehicles`` (SUMO traffic enters and leaves by
@@ -94,5 +93,6 @@ def test_contract_on_sumo(name: str, seed: int) -> None:
 def test_most_estimators_run_on_sumo(seed: int) -> None:
     """The SUMO contract is not vacuous: the GNSS baseline, the bound and the V2F methods run."""
     rec = _recording(seed)
-    for name in ("gnss-kf", "oracle-kf", "icp", "icp-da-lc", "icp-da-pf", "rsu-bp", "oracle-pose"):
+    for name in ("gnss-kf", "oracle-kf", "icp", "icp-da-lc", "icp-da-pf", "rsu-bp", "oracle-pose", "plbp",
+                 "prior-lbp"):
         assert _refusal(name, rec) is None, name

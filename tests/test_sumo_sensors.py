@@ -24,7 +24,7 @@ from cooploc.io import load_recording, save_recording
 from cooploc.scenarios import get_preset, sumo
 from cooploc.sensors import AngleOfArrival, AnonymousPosition, InfrastructureRadar, Odometry
 from cooploc.types import Recording
-from helpers import assert_covariance_close, run_estimator
+from helpers import assert_covariance_close, make_traffic, run_estimator
 
 #: every new family off: the sensors of the recording before issue 19
 BRAMBILLA_ONLY = {"radar": False, "odometry": False, "aoa": False, "anonymous_gnss": False}
@@ -35,29 +35,6 @@ OLD_KINDS = ("gnss", "v2f")
 #: the noise-free geometry to this tolerance (1e-6 σ, 10 σ margin)
 TINY = 1e-12
 GEOMETRY_ATOL = 1e-5
-
-
-def make_traffic(states: np.ndarray, present: np.ndarray, heading: np.ndarray | None = None, *,
-                 features: np.ndarray | None = None,
-                 junctions: tuple[list[str], np.ndarray, list[int]] | None = None) -> sumo.Traffic:
-    """A `Traffic` by hand: vehicle states (T, N, 4) with presence (T, N), headings (T, N)
-    (default: along the velocity), static features (K, 2), junctions (ids, (J, 2), roads)."""
-    T, N = present.shape
-    states = np.where(present[..., None], states, 0.0)
-    if heading is None:
-        heading = np.arctan2(states[..., 3], states[..., 2])
-    heading = np.where(present, wrap_angle(heading), 0.0)
-    features = np.zeros((0, 2)) if features is None else np.asarray(features, dtype=float)
-    ids, xy, roads = junctions if junctions is not None else (["j0"], np.zeros((1, 2)), [4])
-    return sumo.Traffic(
-        t=np.arange(T, dtype=float), vehicle_ids=np.arange(N, dtype=np.int64) * 3 + 1,
-        vehicle_states=states, vehicle_present=present,
-        pedestrian_ids=np.zeros(0, dtype=np.int64), pedestrian_states=np.zeros((T, 0, 4)),
-        pedestrian_present=np.zeros((T, 0), dtype=bool), static_features=features,
-        static_kind=np.full(features.shape[0], 2, dtype=np.int64), centre=np.zeros(2),
-        bounds=np.array([[-1e3, 1e3], [-1e3, 1e3]]), signals=np.zeros((0, 2)), vehicle_heading=heading,
-        junction_ids=np.array(ids, dtype=str), junctions=np.asarray(xy, dtype=float).reshape(-1, 2),
-        junction_roads=np.asarray(roads, dtype=np.int64))
 
 
 def params_for(run: sumo.Traffic, **overrides: object) -> sumo.SumoParams:
@@ -123,7 +100,7 @@ def test_existing_rows_do_not_change_with_the_new_families(on: dict, rng: np.ran
     kinds = ("v2f",) if on.get("anonymous_gnss") else OLD_KINDS  # anonymous GNSS: its own check below
     kinds_equal(before, after, kinds)
     assert set(before.frames[3].batches) == set(OLD_KINDS)
-    new = {k for k, v in on.items() if v and k != "anonymous_gnss"}
+    new = {k for k, v in on.items() if v and k != "anonymous_gnss"} | ({"anchor"} if on.get("aoa") else set())
     assert set(after.frames[3].batches) == set(OLD_KINDS) | new
 
 
@@ -134,7 +111,9 @@ def test_each_family_switches_off(rng: np.random.Generator, seed: int) -> None:
     assert rec.setup.infrastructure_ids == () and rec.truth.sensor_poses.shape == (0, 3)
     assert all(set(f.batches) == set(OLD_KINDS) for f in rec.frames)
     on = lay(run, seed, **ALL_ON)
-    assert set(on.setup.sensors) == {"gnss", "v2f", "radar", "odometry", "aoa"}
+    assert set(on.setup.sensors) == {"gnss", "v2f", "radar", "odometry", "aoa", "anchor"}
+    # the AoA anchors belong to the AoA family: a share of 0 leaves only the angles
+    assert set(lay(run, seed, aoa=True, aoa_anchor_share=0.0).setup.sensors) == {*OLD_KINDS, "aoa"}
     # the defaults: radars and AoA on, odometry and anonymous GNSS off (module docstring)
     defaults = sumo.SumoParams()
     assert (defaults.radar, defaults.aoa) == (True, True)

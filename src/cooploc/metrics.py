@@ -3,7 +3,9 @@
 - Position error: Euclidean distance between estimated and true position (m).
 - Velocity error: Euclidean distance of the velocity components (m/s), where the
   layout has them.
-- Heading error: |wrap(α̂ − α)| in rad, wrapped to [−π, π), where the layout has one.
+- Heading error: |wrap(α̂ − α)| in rad, wrapped to [−π, π), where the layout has one;
+  where it has none, of the headings an estimator reports in ``Estimate.info["heading"]``
+  (`plbp` on `sumo-*`) against `Truth.vehicle_heading`, if the truth keeps it.
 - RMSE = sqrt(mean of the squared 2-D position error) over whatever set of steps,
   runs and entities is pooled; `per_entity_rmse` pools steps (and runs) per id.
 - `ecdf`: the empirical CDF (sorted values and probabilities i/n).
@@ -79,6 +81,7 @@ from cooploc.types import (
     Recording,
     StateLayout,
     StateSet,
+    Truth,
     lookup_ids,
 )
 
@@ -366,6 +369,21 @@ def _entity_errors(mean: FloatArray, true: FloatArray, layout: StateLayout
     return err_pos, err_vel, err_heading
 
 
+def _info_heading_errors(estimate: Estimate, ok: npt.NDArray[np.bool_], truth: Truth, k: int,
+                         col: IntArray, default: FloatArray) -> FloatArray:
+    """Heading errors of an estimator that reports its vehicles' headings beside a layout
+    without one (`info["heading"]` (n,), in the order of `estimate.vehicles`, e.g. `plbp`
+    on `sumo-*`), against `Truth.vehicle_heading`; `default` where either is missing."""
+    heading = estimate.info.get("heading")
+    if heading is None or truth.vehicle_heading is None or estimate.info.get("set_valued"):
+        return default
+    heading = np.asarray(heading, dtype=float)
+    if heading.shape != (len(estimate.vehicles),):
+        raise InvalidInputError(f"Estimate.info['heading'] must have shape ({len(estimate.vehicles)},), "
+                                f"got {heading.shape}")
+    return np.abs(wrap_angle(heading[ok] - truth.vehicle_heading[k, col]))
+
+
 def _relabel_by_assignment(est: StateSet, ids: IntArray, states: FloatArray,
                            layout: StateLayout) -> StateSet:
     """The estimates that the optimal assignment pairs with true vehicles, relabelled with
@@ -437,6 +455,8 @@ def evaluate(recording: Recording, estimates: Sequence[Estimate]) -> ErrorTable:
             if not ok.any():
                 continue
             e_pos, e_vel, e_head = _entity_errors(est.mean[ok], states[col[ok]], layout)
+            if kind == VEHICLE and layout.heading is None:
+                e_head = _info_heading_errors(estimate, ok, truth, k, col[ok], e_head)
             n = e_pos.size
             columns.append((np.full(n, k), np.full(n, t), np.full(n, kind), est.ids[ok],
                             e_pos, e_vel, e_head, _position_nees(est, ok, states[col[ok]], layout)))

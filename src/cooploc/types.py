@@ -732,6 +732,9 @@ class Estimate:
       (0.0, 0) on a step without update; reported by Gaussian filters that update with
       innovations (`gaussian.kf_update_nis`). The runner sums both over steps per run;
       summary.json's `nis_mean` is ΣNIS / Σdof.
+    - ``"heading"`` ((n,) float, rad): the headings of `vehicles`, in their order, from an
+      estimator that estimates them beside a vehicle layout without a heading (`plbp` on
+      `sumo-*`); scored against `Truth.vehicle_heading` like a layout's heading.
     """
 
     vehicles: StateSet

@@ -19,8 +19,10 @@ Modules, in the order of the algorithm:
   approximation (`linearize_links`);
 - `solve` — Algorithm 1 on one snapshot (`plbp_solve`) and per-iteration errors
   (`iteration_errors`);
+- `heading` — the heading of a [p, v] belief from the direction of its velocity
+  (`with_velocity_heading`), for scenarios whose state has none (`sumo-*`);
 - `estimators` — `PLBP` / `PriorLBP` and their Params: tracking over frames (motion
-  prediction, GNSS fixes) around one solve per frame;
+  prediction, GNSS and anchor fixes) around one solve per frame;
 - `_kernels` — the numba kernels, imported on first use (not at package import).
 
 Derivation of the messages and the choices the paper leaves open: docs/plbp.md.

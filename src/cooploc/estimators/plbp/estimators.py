@@ -16,9 +16,25 @@ Choices the paper leaves open:
   information form with that step's `"gnss"` rows (a fresh position/heading fix,
   angular components moved onto the branch of the prediction); the result is the prior
   of this step's solve. Vehicles that enter start from `Setup.vehicle_prior` or their
-  first fix (`estimators.base.birth_beliefs`).
+  first fix (`estimators.base.birth_beliefs`). Gaussian BP treats the priors of a step
+  as independent, but a carried posterior is correlated with its neighbours' through
+  the AoA of earlier steps, so over a long run the same angles are counted again and
+  again (the beliefs grow over-confident). `tracking="own-fixes"` carries each vehicle's
+  filter of its own fixes instead and solves the AoA on it as a snapshot every step.
 - AoA rows naming a vehicle that is not present are ignored.
 - Output headings are wrapped to [−π, π).
+- Anchors (beyond the snapshot's priors): a scenario may give its anchors a fix of
+  [p_x, p_y, α] at every step (kind `"anchor"`, `sumo-*`); it is fused like the
+  `"gnss"` fix, after it.
+- A layout without a heading but with a velocity ([p_x, p_y, v_x, v_y], the `sumo-*`
+  family, whose AoA model reads the heading as component 4): the tracked beliefs stay
+  over the layout, so the estimate has the layout's components like every other
+  estimator's. At every step, after the fixes of the layout, the heading joins each
+  belief as the direction of its velocity (`plbp.heading`: α = atan2(v_y, v_x) + s,
+  by statistical linear regression, with its cross-covariance to v); the anchors' fixes
+  and the solve run on [p, v, α]; then α is marginalised out again, so that the AoA
+  information kept is what reached p and v. The heading itself is reported in
+  `info["heading"]` (n,) (wrapped) and scored against `Truth.vehicle_heading`.
 
 `info["iterate_means"]` (J + 1, n, dx): the beliefs' means before the first and after
 every linearization iteration (heading wrapped), in the order of `Estimate.vehicles`;
@@ -38,6 +54,7 @@ import numpy as np
 
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import VehicleBeliefs, checked_states
+from cooploc.estimators.plbp.heading import with_velocity_heading
 from cooploc.estimators.plbp.links import link_factors
 from cooploc.estimators.plbp.solve import plbp_solve
 from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize, to_information
@@ -60,12 +77,22 @@ class PLBPParams(Params):
     bp_iterations : L, BP iterations per linearization.
     sigma_points : "unscented" or "cubature".
     central_weight : w₀ of the unscented points.
+    heading_slip_std : σ_s (rad), spread of the heading about the velocity direction, where
+        the heading comes from the velocity (a layout without a heading; `plbp.heading`).
+    tracking : what a step's prior is. ``"posterior"`` (the default, as `aoa-grid-tracking`
+        has it): the previous step's posterior, predicted, updated with the step's own fixes.
+        ``"own-fixes"``: each vehicle's own filter of its fixes (GNSS, and an anchor's
+        fix), predicted and updated the same way; the AoA solve runs on it every step and
+        its posterior is reported but not carried on, so the AoA of one step is never
+        counted again at a later one (module docstring).
     """
 
     linearization_iterations: int = param(5, ge=1)
     bp_iterations: int = param(3, ge=1)
     sigma_points: Literal["unscented", "cubature"] = "unscented"
     central_weight: float = param(1.0 / 3.0, ge=0, lt=1)
+    heading_slip_std: float = param(0.01, gt=0, le=np.pi)
+    tracking: str = param("posterior", choices=("posterior", "own-fixes"))
 
 
 @dataclass(frozen=True)
@@ -77,7 +104,7 @@ class PriorLBPParams(PLBPParams):
 class PLBP:
     """Posterior-linearization Gaussian BP over AoA links, one solve per frame.
 
-    Uses: AoA rows and identified GNSS fixes (the anchors').
+    Uses: AoA rows, identified GNSS fixes and the anchors' fixes.
 
     Knowingly inconsistent: Gaussian BP on the loopy AoA graph counts shared links more
     than once and each link is linearized, so the covariances are over-confident: its
@@ -92,7 +119,7 @@ class PLBP:
     default_preset: ClassVar[str] = "aoa-grid"
     required_sensors: ClassVar[tuple[str, ...]] = ("aoa",)
     usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
-        "aoa": ("angle-of-arrival",), "gnss": ("gnss-position",)}
+        "aoa": ("angle-of-arrival",), "gnss": ("gnss-position",), "anchor": ("gnss-position",)}
     posterior: ClassVar[bool] = True
 
     def __init__(self, setup: Setup, params: PLBPParams, rng: np.random.Generator) -> None:
@@ -101,23 +128,37 @@ class PLBP:
             raise ConfigError(f"{self.name} needs an 'aoa' sensor (AngleOfArrival) in the setup, "
                               f"got {sensor!r}")
         layout = setup.vehicle_layout
-        if layout.heading is None:
-            raise ConfigError(f"{self.name} needs a vehicle layout with a heading, got {layout}")
+        self._velocity: tuple[int, ...] | None = None     # heading from the velocity (module docstring)
+        if layout.heading is not None:
+            self._heading = layout.heading
+        elif (layout.velocity is not None and len(layout.velocity) == 2
+              and sensor.state_indices == (*layout.position, layout.dim)):
+            self._heading, self._velocity = layout.dim, layout.velocity
+        else:
+            raise ConfigError(
+                f"{self.name} needs a vehicle layout with a heading, or a 2-D layout with a velocity and "
+                f"an 'aoa' sensor reading the heading as component {layout.dim} (state_indices "
+                f"{(*layout.position, layout.dim)}); got {layout} and state_indices {sensor.state_indices}")
         self.setup, self.params, self.sensor = setup, params, sensor
         self.vehicles = VehicleBeliefs(setup)
         motion = setup.vehicle_motion
         self._F = motion.transition_matrix(setup.dt)
         self._Q = None if motion.state_dependent_noise else motion.noise_covariance(setup.dt)
-        self._heading = layout.heading
         self._started = False
 
     def step(self, frame: Frame) -> Estimate:
+        p = self.params
         born = self.vehicles.sync(frame)
         beliefs = self._predict(self.vehicles.beliefs, ~born)
         self._started = True
-        beliefs = self._fix(beliefs, frame.batches.get("gnss"))
+        beliefs = self._fix(beliefs, frame.batches.get("gnss"), self.setup.sensors.get("gnss"))
+        if self._velocity is not None:
+            beliefs = with_velocity_heading(beliefs, self._velocity, p.heading_slip_std**2,
+                                            method=p.sigma_points, central_weight=p.central_weight)
+        beliefs = self._fix(beliefs, frame.batches.get("anchor"), self.setup.sensors.get("anchor"))
+        dx = self.setup.vehicle_layout.dim
+        own = Gaussians(beliefs.mean[:, :dx], beliefs.cov[:, :dx, :dx])   # the layout's marginal
         links = link_factors(frame.batch("aoa", 1), self.vehicles.ids)
-        p = self.params
         posterior, iterates = plbp_solve(
             beliefs, links, self.sensor, linearization_iterations=p.linearization_iterations,
             bp_iterations=p.bp_iterations, posterior=self.posterior, method=p.sigma_points,
@@ -125,10 +166,13 @@ class PLBP:
         mean = posterior.mean.copy()
         mean[:, self._heading] = wrap_angle(mean[:, self._heading])
         iterates[..., self._heading] = wrap_angle(iterates[..., self._heading])
-        self.vehicles.beliefs = Gaussians(mean, posterior.cov)
         info: dict[str, Any] = {"iterate_means": iterates, "n_links": len(links)}
-        return Estimate(checked_states(self.name, "vehicle", self.vehicles.ids, mean, posterior.cov),
-                        info=info)
+        cov = posterior.cov
+        if self._velocity is not None:   # marginalise the heading out again
+            info["heading"] = mean[:, self._heading]
+            mean, cov = mean[:, :dx], cov[:, :dx, :dx]
+        self.vehicles.beliefs = Gaussians(mean, cov) if p.tracking == "posterior" else own
+        return Estimate(checked_states(self.name, "vehicle", self.vehicles.ids, mean, cov), info=info)
 
     def _predict(self, beliefs: Gaussians, moving: np.ndarray) -> Gaussians:
         """Prediction with the motion model of every vehicle that was already there."""
@@ -141,9 +185,12 @@ class PLBP:
         mean[moving], cov[moving] = predicted.mean, predicted.cov
         return Gaussians(mean, cov)
 
-    def _fix(self, beliefs: Gaussians, gnss: Batch | None) -> Gaussians:
-        """Information-form update with this step's own fixes (tracking): Λ += Hᵀ R⁻¹ H, η += Hᵀ R⁻¹ z̃."""
-        sensor = self.setup.sensors.get("gnss")
+    def _fix(self, beliefs: Gaussians, gnss: Batch | None, sensor: Any) -> Gaussians:
+        """Information-form update with this step's own fixes (tracking): Λ += Hᵀ R⁻¹ H, η += Hᵀ R⁻¹ z̃.
+
+        `gnss`: rows of a `GnssPosition` `sensor` (kind "gnss" or "anchor"); rows of vehicles
+        not present are ignored.
+        """
         ids = self.vehicles.ids
         if gnss is None or len(gnss) == 0 or sensor is None or ids.size == 0:
             return beliefs
@@ -155,7 +202,8 @@ class PLBP:
         dx = beliefs.mean.shape[1]
         H = sensor.observation_matrix(dx)
         z = gnss.z[rows].copy()
-        angular = np.flatnonzero(H[:, self._heading] != 0)          # heading components of the fix
+        # heading components of the fix (none where the beliefs do not hold the heading)
+        angular = np.flatnonzero(H[:, self._heading] != 0) if self._heading < dx else np.zeros(0, np.int64)
         prediction = beliefs.mean[target] @ H.T
         z[:, angular] = prediction[:, angular] + wrap_angle(z[:, angular] - prediction[:, angular])
         Rinv_H = np.linalg.solve(gnss.cov[rows], np.broadcast_to(H, (rows.size, *H.shape)))

@@ -114,6 +114,8 @@ class SumoParams(Params):
     aoa_variance : σ²_θ (rad²). aoa_field_of_view : Δ (rad), half-width of each array's view.
     aoa_range : longest V2V link (m) with AoA rows (no longer than `communication_range`
         is used: the angle rides on the link's message).
+    aoa_anchor_share : share of the vehicles that are AoA anchors (kind ``anchor``; 0: none).
+    anchor_position_std, anchor_heading_std : σ_p (m), σ_α (rad) of an anchor's fix.
     anonymous_gnss : the GNSS rows reach the fusion centre without their vehicle's id.
     """
 
@@ -165,6 +167,9 @@ class SumoParams(Params):
     aoa_variance: float = param(0.10, ge=limits.VARIANCE_MIN, le=limits.ANGLE_VARIANCE)
     aoa_field_of_view: float = param(float(np.pi / 2), gt=0, le=float(np.pi / 2), must="lie in (0, π/2] rad")
     aoa_range: float = param(30.0, gt=0, le=limits.LENGTH)
+    aoa_anchor_share: float = param(6 / 51, ge=0, le=1)
+    anchor_position_std: float = param(0.1, ge=limits.STD_MIN, le=limits.LENGTH)
+    anchor_heading_std: float = param(0.01, ge=limits.STD_MIN, le=limits.ANGLE)
     anonymous_gnss: bool = False
 
     def validate(self) -> None:

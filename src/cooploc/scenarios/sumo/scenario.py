@@ -48,13 +48,19 @@ The sensors of the other papers (issue 19), each switched off by its key:
   `sensor` = receiver, `subject` = transmitter. α_i is SUMO's own vehicle angle
   (`Traffic.vehicle_heading`).
 
+- AoA anchors (kind ``anchor``, with ``aoa``): a share `aoa_anchor_share` of the run's
+  vehicles (the AoA paper's 6 of 51 by default), drawn once per run, know their position
+  and heading: every step a fix z = [p_x, p_y, α] + w, w ~ N(0, diag(σ_p², σ_p², σ_α²)),
+  σ_p = `anchor_position_std` = 0.1 m, σ_α = `anchor_heading_std` = 0.01 rad (the notes'
+  anchor prior), `sensors.GnssPosition` over (0, 1, 4). Only the AoA estimators read it.
+
 Heading. The vehicle state stays [p_x, p_y, v_x, v_y] (`StateLayout.position_velocity`),
 so that the estimators that do not use a heading see exactly what they saw before the
 AoA rows existed. The true heading is kept in `Truth.vehicle_heading` (T, N) for
-scoring, and the AoA model in `Setup.sensors["aoa"]` has `state_indices` (0, 1, 4):
-positions from the layout, the heading as a fifth component [p_x, p_y, v_x, v_y, α]
-that an AoA estimator must track beside the layout (the setup's 4-component layout has
-no heading, which `plbp` refuses today).
+scoring, and the AoA and anchor models in `Setup.sensors` have `state_indices`
+(0, 1, 4): positions from the layout, the heading as a fifth component
+[p_x, p_y, v_x, v_y, α] that an AoA estimator adds beside the layout (`plbp` takes it
+from the direction of the velocity, `cooploc.estimators.plbp.heading`).
 
 - Motion models given to the estimators: CV (Fröhle eqs. 28–29) with
   `vehicle_noise_density`; one CV with `feature_noise_density` (pedestrian-like) for
@@ -79,11 +85,11 @@ by `oracle-kf`, the presets' bound, which reads GNSS and V2F only. The factor gr
 need it: ``--set odometry=true``. Anonymous GNSS replaces the identified rows that the
 GNSS baseline and the V2F methods need, so it is opt-in too.
 
-Randomness: `rng` is split into nine children, in this order: traffic seed, prior,
+Randomness: `rng` is split into ten children, in this order: traffic seed, prior,
 GNSS, V2F (the four of the Brambilla recording, unchanged), radar poses, radar noise,
-odometry, AoA, anonymous-GNSS order. Every family draws from its own child, so
-switching one on or off leaves every other row bit for bit as it was; `traffic_seed`
-reproduces the first child.
+odometry, AoA, anonymous-GNSS order, AoA anchors (which vehicles, then their fixes).
+Every family draws from its own child, so switching one on or off leaves every other
+row bit for bit as it was; `traffic_seed` reproduces the first child.
 
 Complexity: a frame costs O((n + K) log(n + K) + E + M) for n vehicles present, K
 features, E links and M V2F rows (k-d trees, `geometry.links_within` and
@@ -130,7 +136,8 @@ from cooploc.types import Batch, FloatArray, Frame, IntArray, Recording, Setup, 
 __all__ = ["CITY", "PRESETS", "STREAMS", "TINY_GRID", "generate", "lay_sensors", "traffic_seed"]
 
 #: the random streams `generate` splits its generator into, in order (module docstring)
-STREAMS = ("traffic", "prior", "gnss", "v2f", "radar_pose", "radar", "odometry", "aoa", "gnss_order")
+STREAMS = ("traffic", "prior", "gnss", "v2f", "radar_pose", "radar", "odometry", "aoa", "gnss_order",
+           "anchor")
 #: the vehicle state an AoA row is a function of: the layout's four components and the heading
 _AOA_STATE = (0, 1, 4)
 
@@ -188,7 +195,8 @@ class _Radars:
 
 def _lay(params: SumoParams, run: Traffic, streams: Sequence[np.random.Generator]) -> Recording:
     """The recording of `run` with the generators of `STREAMS` (the traffic one unused here)."""
-    _, rng_prior, rng_gnss, rng_v2f, rng_pose, rng_radar, rng_odometry, rng_aoa, rng_order = streams
+    (_, rng_prior, rng_gnss, rng_v2f, rng_pose, rng_radar, rng_odometry, rng_aoa, rng_order,
+     rng_anchor) = streams
     T, dt = params.n_steps, params.dt
     layout = StateLayout.position_velocity(2)
     state = (0, 1, 2, 3)
@@ -223,6 +231,15 @@ def _lay(params: SumoParams, run: Traffic, streams: Sequence[np.random.Generator
     if aoa is not None:
         sensors["aoa"] = aoa
     aoa_range = min(params.aoa_range, params.communication_range)
+    # AoA anchors: a share of the run's vehicles, drawn once per run; each present anchor
+    # gets a fix of [p_x, p_y, α] at every step (the PLBP paper's anchor prior, kept)
+    rng_pick, rng_anchor_fix = rng_anchor.spawn(2)
+    is_anchor = rng_pick.random(run.vehicle_ids.size) < params.aoa_anchor_share
+    anchor = None
+    if aoa is not None and params.aoa_anchor_share > 0:
+        anchor = GnssPosition(default_cov=np.diag([params.anchor_position_std**2] * 2
+                                                  + [params.anchor_heading_std**2]), state_indices=_AOA_STATE)
+        sensors["anchor"] = anchor
 
     # what the steps read, and nothing else of `run`: a streamed recording keeps these
     # (the states are swapped for the truth's copies below, so that one copy is kept)
@@ -232,7 +249,8 @@ def _lay(params: SumoParams, run: Traffic, streams: Sequence[np.random.Generator
     def steps() -> Iterator[Step]:
         # from the generators' states now, so that every pass draws the same numbers
         rng_g, rng_f = copy.deepcopy(rng_gnss), copy.deepcopy(rng_v2f)
-        rng_r, rng_o, rng_a, rng_s = (copy.deepcopy(g) for g in (rng_radar, rng_odometry, rng_aoa, rng_order))
+        rng_r, rng_o, rng_a, rng_s, rng_n = (copy.deepcopy(g) for g in (rng_radar, rng_odometry, rng_aoa,
+                                                                         rng_order, rng_anchor_fix))
         vehicle_states, feature_states = states_of["vehicles"], states_of["features"]
         heading = states_of["heading"]
         for k in range(T):
@@ -275,6 +293,10 @@ def _lay(params: SumoParams, run: Traffic, streams: Sequence[np.random.Generator
                 near = links_within(ids, states[:, :2], aoa_range)
                 aoa_batch = aoa.measure(ids, with_heading, near, rng_a)
                 batches["aoa"], origin["aoa"] = aoa_batch, aoa_batch.subject.copy()
+                if anchor is not None:
+                    on = is_anchor[present]
+                    batches["anchor"] = anchor.measure(ids[on], with_heading[on], rng_n)
+                    origin["anchor"] = ids[on]
             yield Frame(k, k * dt, ids, batches, links), origin
 
     frames, origins = streamed(T, steps, lazy=is_long(T))
@@ -305,7 +327,8 @@ def _lay(params: SumoParams, run: Traffic, streams: Sequence[np.random.Generator
         infrastructure_ids=() if radars is None else tuple(radars.ids.tolist()),
         description=(f"SUMO {params.regulation.upper()} traffic on {net}: "
                      f"{run.vehicle_ids.size} vehicles, {K} static features, "
-                     f"{run.pedestrian_ids.size} pedestrians, {n_radars} radars, {T} steps of {dt} s"),
+                     f"{run.pedestrian_ids.size} pedestrians, {n_radars} radars, "
+                     f"{int(is_anchor.sum()) if anchor is not None else 0} AoA anchors, {T} steps of {dt} s"),
     )
     truth = Truth(
         vehicle_ids=run.vehicle_ids,
