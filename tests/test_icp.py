@@ -19,7 +19,7 @@ from scipy import stats
 
 from cooploc.estimators import get_estimator, make_estimator
 from cooploc.estimators.icp import relative_message
-from cooploc.estimators.icp.data_association import _group_births
+from cooploc.estimators.icp.data_association import BIRTH_GATE, BIRTH_ID_BASE, _group_births, _names_known
 from cooploc.experiment import ExperimentConfig, run_experiment
 from cooploc.gaussian import Gaussians, to_information
 from cooploc.results import summarize
@@ -187,6 +187,61 @@ def test_group_births_one_row_per_vehicle() -> None:
     far = g.copy()
     far[3, 0] = 100.0
     assert _group_births(ids, agents, far, P)[3] == 30   # outside the gate: its own feature
+
+
+def _group_births_all_pairs(ids, agents, g, P):
+    """The grouping by its definition: every pair of the upper triangle, closest first."""
+    label = np.arange(ids.size)
+    i, j = np.triu_indices(ids.size, 1)
+    i, j = i[agents[i] != agents[j]], j[agents[i] != agents[j]]
+    diff = g[i] - g[j]
+    d2 = np.array([dv @ np.linalg.solve(P[a] + P[b], dv) for a, b, dv in zip(i, j, diff, strict=True)])
+    for k in np.argsort(d2, kind="stable"):
+        la, lb = label[i[k]], label[j[k]]
+        if d2[k] >= BIRTH_GATE or la == lb or set(agents[label == la]) & set(agents[label == lb]):
+            continue
+        label[label == max(la, lb)] = min(la, lb)
+    return ids[label]
+
+
+def _birth_candidates(seed: int, C: int = 60, n_agents: int = 12):
+    """Clusters of candidates from few vehicles, some with wide covariances."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(0, 40, (8, 2))
+    g = np.zeros((C, 4))
+    g[:, :2] = centres[rng.integers(0, 8, C)] + rng.normal(0, 0.8, (C, 2))
+    g[:, 2:] = rng.normal(0, 1, (C, 2))
+    A = rng.normal(0, 1, (C, 4, 4)) * rng.choice([0.3, 1.0, 3.0], C)[:, None, None]
+    P = A @ A.transpose(0, 2, 1) + 0.05 * np.eye(4)
+    owner = np.sort(rng.integers(0, n_agents, C))          # candidates in agent order
+    return rng, BIRTH_ID_BASE + np.arange(C), owner, g, P
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_group_births_equals_the_all_pairs_definition(seed: int) -> None:
+    # the k-d tree's reach must find every pair the gate admits
+    _, ids, agents, g, P = _birth_candidates(seed)
+    np.testing.assert_array_equal(_group_births(ids, agents, g, P),
+                                  _group_births_all_pairs(ids, agents, g, P))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_names_known_equal_each_agents_own_grouping(seed: int) -> None:
+    # each agent knows its own candidates and a random part of the others (some
+    # components whole, some in part); a candidate's name is its owner's grouping of them
+    rng, ids, owner, g, P = _birth_candidates(seed)
+    n = 12
+    have = rng.random((n, ids.size)) < rng.choice([0.3, 0.9, 1.0], n)[:, None]
+    have[owner, np.arange(ids.size)] = True
+    have[4] = have[5] = have[4] | have[5]                   # two agents that know the same
+    expected = np.empty(ids.size, dtype=np.int64)
+    for c in range(ids.size):
+        members = np.flatnonzero(have[owner[c]])
+        names = _group_births_all_pairs(ids[members], owner[members], g[members], P[members])
+        expected[c] = names[np.searchsorted(members, c)]
+    got = _names_known(have, owner, ids, owner, g, P, (0, 1))
+    np.testing.assert_array_equal(got, expected)
+    assert len(set(got.tolist())) < ids.size                # groups did form
 
 
 @pytest.mark.slow

@@ -47,8 +47,8 @@ made — 3 % of the rows, and 37 of the 92 rows of vehicles whose prior was wide
 sees"). `registration = False` gives the paper's (13).
 
 Cost per step and agent: O(P F W) for the BPA-DA over F tracks and W rows, O(H W F)
-for the registration (H pivot pairs, at most F W), O(C²) for grouping C birth
-candidates, then that of `icp`.
+for the registration (H pivot pairs, at most F W), O(C log C + pairs within the gate)
+for grouping C birth candidates, then that of `icp`.
 """
 
 from __future__ import annotations
@@ -69,6 +69,7 @@ from cooploc.errors import ConfigError
 from cooploc.estimators.icp.gaussian_bp import ICP, ICPParams
 from cooploc.estimators.icp.registration import register_vehicles
 from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf
+from cooploc.geometry import links_within
 from cooploc.network import Network
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
@@ -267,35 +268,100 @@ class ICPDALC(ICP):
         payload[ai, np.arange(C)] = np.concatenate([g, P.reshape(C, -1)], axis=1)
         have, _, _ = flood(network, have, payload, self.params.share_hops,
                            np.broadcast_to(network.agents[:, None], (n, C)))
-        # agents that know the same candidates compute the same grouping once
-        out = np.empty(C, dtype=np.int64)
-        patterns, which = np.unique(have, axis=0, return_inverse=True)
-        which = np.asarray(which).reshape(-1)
-        for pattern_index, pattern in enumerate(patterns):   # few distinct patterns per step
-            members = np.flatnonzero(pattern)
-            names = _group_births(ids[members], agent_ids[members], g[members], P[members])
-            mine = np.flatnonzero(pattern & (which[ai] == pattern_index))
-            out[mine] = names[np.searchsorted(members, mine)]
+        out = _names_known(have, ai, ids, agent_ids, g, P, self._position)
         # ids grow with (agent, row), the order of the candidates: a name is found by search
         lead = np.searchsorted(ids, out)
         return out, g[lead], P[lead]
 
 
-def _group_births(ids: IntArray, agents: IntArray, g: FloatArray, P: FloatArray) -> IntArray:
-    """Greedy gated grouping of first detections; returns the group id of each candidate."""
+def _names_known(have: np.ndarray, owner: IntArray, ids: IntArray, agents: IntArray, g: FloatArray,
+                 P: FloatArray, position: tuple[int, ...]) -> IntArray:
+    """The name of each candidate as its own agent (row `owner` of `have`) groups the
+    candidates it knows (`_group_births` over them).
+
+    Greedy grouping never joins candidates of different components of the gate graph
+    (pairs within the gate), so an agent that knows a whole component groups it as the
+    grouping of all candidates does; only the components it knows in part are grouped
+    again, over the part it knows (once per distinct part: agents around share them).
+    The same names as grouping each agent's set, for a cost that follows the candidates
+    and not agents × candidates.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     C = ids.size
-    label = np.arange(C)
-    if C > 1:
-        i, j = np.triu_indices(C, 1)
-        ok = agents[i] != agents[j]
-        i, j = i[ok], j[ok]
-        diff = g[i] - g[j]
-        d2 = np.einsum("pi,pi->p", diff, np.linalg.solve(P[i] + P[j], diff[..., None])[..., 0])
-        keep = d2 < BIRTH_GATE
-        i, j, d2 = i[keep], j[keep], d2[keep]
-        for a, b in zip(i[np.argsort(d2, kind="stable")], j[np.argsort(d2, kind="stable")], strict=True):
-            la, lb = label[a], label[b]
-            if la == lb or np.isin(agents[label == la], agents[label == lb]).any():
-                continue                                     # one row per vehicle and feature
-            label[label == max(la, lb)] = min(la, lb)
+    i, j, d2 = _gated_pairs(agents, g, P, position)
+    _, component = connected_components(coo_matrix((np.ones(i.size), (i, j)), shape=(C, C)), directed=False)
+    size = np.bincount(component)
+    out = _greedy_groups(ids, agents, i, j, d2)             # every candidate known
+    patterns, which = np.unique(have, axis=0, return_inverse=True)
+    which = np.asarray(which).reshape(-1)[owner]              # each candidate's owner's pattern
+    regrouped: dict[bytes, IntArray] = {}
+    for pattern_index in np.unique(which).tolist():
+        mine = np.flatnonzero(which == pattern_index)
+        members = np.flatnonzero(patterns[pattern_index])
+        known = np.bincount(component[members], minlength=size.size)
+        for part in np.unique(component[mine][known[component[mine]] < size[component[mine]]]).tolist():
+            subset = members[component[members] == part]     # the part of the component it knows
+            key = subset.tobytes()
+            if key not in regrouped:
+                inside = np.isin(i, subset) & np.isin(j, subset)
+                at = np.searchsorted(subset, np.stack([i[inside], j[inside]]))
+                regrouped[key] = _greedy_groups(ids[subset], agents[subset], at[0], at[1], d2[inside])
+            its = mine[component[mine] == part]
+            out[its] = regrouped[key][np.searchsorted(subset, its)]
+    return out
+
+
+def _gated_pairs(agents: IntArray, g: FloatArray, P: FloatArray, position: tuple[int, ...]
+                 ) -> tuple[IntArray, IntArray, FloatArray]:
+    """(i, j, d²) of the candidate pairs from different vehicles within the gate, sorted by
+    (i, j), i < j: d² = Δgᵀ (P_i + P_j)⁻¹ Δg < `BIRTH_GATE`. Only pairs whose `position`
+    components lie within √(gate · 2 max λ_max(P)) can pass (d² ≥ ‖Δp‖² / λ_max(P_i + P_j)),
+    so they are found with a k-d tree, not among all C² pairs."""
+    empty = np.zeros(0, dtype=np.int64)
+    if agents.size < 2:
+        return empty, empty, np.zeros(0)
+    reach = np.sqrt(BIRTH_GATE * 2.0 * np.linalg.eigvalsh(P)[:, -1].max()) * (1.0 + 1e-9)
+    i, j = links_within(np.arange(agents.size), g[:, list(position)], reach).T
+    ok = agents[i] != agents[j]
+    i, j = i[ok], j[ok]
+    diff = g[i] - g[j]
+    d2 = np.einsum("pi,pi->p", diff, np.linalg.solve(P[i] + P[j], diff[..., None])[..., 0])
+    keep = d2 < BIRTH_GATE
+    return i[keep], j[keep], d2[keep]
+
+
+def _greedy_groups(ids: IntArray, agents: IntArray, i: IntArray, j: IntArray, d2: FloatArray) -> IntArray:
+    """Group ids over the gated pairs (i, j, d²) sorted by (i, j): closest first, a pair
+    joins two groups unless they share a vehicle; each group named after its first member."""
+    label = np.arange(ids.size)
+    order = np.argsort(d2, kind="stable")
+    members = {}                                           # of each group of more than one
+    vehicles = {}
+    for a, b in zip(i[order].tolist(), j[order].tolist(), strict=True):
+        la, lb = int(label[a]), int(label[b])
+        if la == lb:
+            continue
+        va = vehicles.get(la, {int(agents[la])})
+        vb = vehicles.get(lb, {int(agents[lb])})
+        if not va.isdisjoint(vb):
+            continue                                       # one row per vehicle and feature
+        first, second = min(la, lb), max(la, lb)
+        moved = members.pop(second, [second])
+        label[moved] = first
+        members[first] = members.get(first, [first]) + moved
+        vehicles[first] = va | vb
+        vehicles.pop(second, None)
     return ids[label]
+
+
+def _group_births(ids: IntArray, agents: IntArray, g: FloatArray, P: FloatArray,
+                  position: tuple[int, ...] = (0, 1)) -> IntArray:
+    """Greedy gated grouping of first detections; returns the group id of each candidate.
+
+    Pairs from different vehicles whose gap d² = Δgᵀ (P_i + P_j)⁻¹ Δg is within
+    `BIRTH_GATE` are taken closest first (`_gated_pairs`); a pair joins two groups
+    unless they share a vehicle (one row per vehicle and feature).
+    """
+    return _greedy_groups(ids, agents, *_gated_pairs(agents, g, P, position))
