@@ -409,7 +409,32 @@ class SmePF(_SmeFilter):
             accepted += int(accept.sum())
         return accepted / (self.params.n_moves * log_ratio.size)
 
+    def _update_group(self, mean: FloatArray, cov: FloatArray, model: PseudoMeasurement
+                      ) -> tuple[FloatArray, FloatArray]:
+        """Per-radar mode: one group's independent Gaussian blocks updated by importance
+        sampling (a Gaussian particle filter, Kotecha & Djurić 2003): `n_particles` joint
+        draws of the group from the linearized proposal, weighted by the exact
+        pseudo-likelihood over the linearized one, moment-matched back to the blocks."""
+        P = self.params.n_particles
+        prior = np.broadcast_to(mean, (P, *mean.shape))
+        try:
+            proposal = linearized_proposal(prior, cov, np.zeros(P), model, self.pos,
+                                           self.params.linearization_iterations)
+            x = proposal.draw(proposal.mean, self.rng)
+            log_w = self._log_ratio(model, proposal, x)
+        except np.linalg.LinAlgError:
+            # no positive definite linearization: draw from the prior, weigh by p(y | x)
+            L = np.linalg.cholesky(cov)
+            x = prior + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(prior.shape))
+            log_w = model.log_likelihood(x[:, :, self.pos])
+        if not np.isfinite(log_w).any():
+            return mean, cov   # every weight vanished: the group keeps its prior (no update)
+        m, c = marginal_moments(x, np.where(np.isfinite(log_w), log_w, -np.inf))
+        return m, c + 1e-9 * np.eye(self.dx)
+
     def step(self, frame: Frame) -> Estimate:
+        if self.per_radar:
+            return self._step_per_radar(frame)
         if self.params.proposal == "linearized":
             return self._step_linearized(frame)
         parents = None  # x_{k−1} of each particle, for the move kernel
