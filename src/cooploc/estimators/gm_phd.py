@@ -232,6 +232,7 @@ class GMPHD:
             self.kappa = setup.clutter_rate / area
         self.mixture: Mixture | None = None
         self._last_rows: tuple[FloatArray, FloatArray] | None = None
+        self._present: IntArray = np.zeros(0, dtype=np.int64)   # the vehicles of the last step
 
     def _initial(self, frame: Frame) -> Mixture:
         prior = self.setup.vehicle_prior
@@ -256,8 +257,34 @@ class GMPHD:
         return Mixture(np.full(z.shape[0], np.log(self.params.birth_weight)),
                        predicted.mean, predicted.cov)
 
+    def _entry_births(self, frame: Frame, predicted: Mixture, z: FloatArray, R: FloatArray) -> Mixture:
+        """One component of weight 1 per vehicle that entered this step (docs/gm_phd.md).
+
+        The fusion centre knows that a vehicle connected, not which row is its: each birth
+        sits on one of the rows farthest (squared Mahalanobis, position and every other
+        measured component) from every predicted component, with `default_birth_cov` —
+        broad, so that the update puts it on its row.
+        """
+        known = self._present if self.mixture is not None else self.setup.vehicle_prior.ids
+        n_new = int((~np.isin(frame.vehicles, known)).sum())
+        if n_new == 0 or z.shape[0] == 0:
+            return Mixture.empty(self.dx)
+        if len(predicted):
+            S = symmetrize((self.H @ predicted.cov @ self.H.T)[None] + R[:, None])      # (M, J, dz, dz)
+            r = z[:, None, :] - (predicted.mean @ self.H.T)[None]
+            d2 = np.einsum("mji,mji->mj", r, np.linalg.solve(S, r[..., None])[..., 0]).min(axis=1)
+        else:
+            d2 = np.zeros(z.shape[0])
+        rows = np.argsort(-d2, kind="stable")[:n_new]
+        cov = np.repeat(default_birth_cov(self.setup)[None], rows.size, 0)
+        return Mixture(np.zeros(rows.size), z[rows] @ self.H, cov)
+
     def step(self, frame: Frame) -> Estimate:
         p = self.params
+        gnss = frame.batches.get("gnss")
+        dz = self.H.shape[0]
+        z = gnss.z if gnss is not None else np.zeros((0, dz))
+        R = gnss.cov if gnss is not None else np.zeros((0, dz, dz))
         if self.mixture is None:
             mixture = self._initial(frame)
         else:
@@ -266,10 +293,8 @@ class GMPHD:
             survived = Mixture(m.log_w + np.log(p.survival_probability), m.mean @ self.F.T,
                                symmetrize(self.F @ m.cov @ self.F.T + self.Q))
             mixture = Mixture.concatenate([survived, self._births()])
-        gnss = frame.batches.get("gnss")
-        dz = self.H.shape[0]
-        z = gnss.z if gnss is not None else np.zeros((0, dz))
-        R = gnss.cov if gnss is not None else np.zeros((0, dz, dz))
+        mixture = Mixture.concatenate([mixture, self._entry_births(frame, mixture, z, R)])
+        self._present = np.array(frame.vehicles, dtype=np.int64)
         try:
             updated = phd_update(mixture, z, R, self.H, self.p_d, self.kappa) if len(mixture) else mixture
             self.mixture = merge_components(updated, p.prune_threshold, p.merge_threshold,

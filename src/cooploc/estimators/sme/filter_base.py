@@ -276,7 +276,7 @@ class _SmeFilter:
                 mean[born], cov[born] = self._births(ids[born], frame, others)
             var = np.einsum("nii->n", cov[:, pos][:, :, pos]) / 2
             row_var = np.einsum("mii->m", gnss.cov) / 2
-            for v, r in gate_groups(gnss.z, row_var, mean[:, pos], var, self._gate):
+            for v, r in gate_groups(gnss.z, row_var, mean[:, pos], var, self._gate, self.params.max_group):
                 if v.size == 0:
                     info["gnss_rows_gated"] += int(r.size)
                     continue

@@ -43,7 +43,8 @@ Anonymous GPS groups (`gate_groups`)
 With anonymous GPS rows in traffic the N of eq. (17) would be every vehicle in the city
 (polynomials of order 30 and more, which the paper's §4.2.3 already finds hopeless at
 10). Rows and predicted vehicles are linked where a row lies within the χ²₂ gate of a
-vehicle; each connected component of that bipartite graph is one SME group. A group
+vehicle; each connected component of that bipartite graph is one SME group (a group
+larger than `max_group` is split again with half the gate, down to a gate of 2). A group
 with as many rows as vehicles and at most `max_group` of them gets its own eq. (17)
 update (one vehicle and one row: the complex power sum s₁ = x + i y is the row itself,
 a Kalman update); other groups are skipped with the reason recorded.
@@ -191,12 +192,14 @@ class RadarFields:
         return np.sort(chosen), ""
 
 
-def gate_groups(z: FloatArray, row_var: FloatArray, p: FloatArray, var: FloatArray, gate: float
-                ) -> list[tuple[IntArray, IntArray]]:
+def gate_groups(z: FloatArray, row_var: FloatArray, p: FloatArray, var: FloatArray, gate: float,
+                max_size: int | None = None) -> list[tuple[IntArray, IntArray]]:
     """The SME groups of anonymous rows z (M, 2) (isotropic variances row_var (M,)) and
     vehicles p (N, 2) (var (N,)): connected components of the gate graph, as (vehicles, rows).
 
-    A row and a vehicle are linked where (z − p)ᵀ(z − p)/(var + row_var) ≤ gate.
+    A row and a vehicle are linked where ‖z − p‖²/(var + row_var) ≤ gate. A group of more
+    than `max_size` vehicles or rows is split again with half the gate, down to a gate of
+    1 (one σ), so that dense traffic still gives groups of a size eq. (17) can hold.
     """
     M, N = z.shape[0], p.shape[0]
     d2 = ((z[:, None, :] - p[None]) ** 2).sum(-1) / (row_var[:, None] + var[None])
@@ -206,5 +209,9 @@ def gate_groups(z: FloatArray, row_var: FloatArray, p: FloatArray, var: FloatArr
     groups = []
     for g in np.unique(label):
         rows, vehicles = np.flatnonzero(label[:M] == g), np.flatnonzero(label[M:] == g)
-        groups.append((vehicles, rows))
+        if max_size is not None and max(rows.size, vehicles.size) > max_size and gate > 2.0:
+            inner = gate_groups(z[rows], row_var[rows], p[vehicles], var[vehicles], gate / 2, max_size)
+            groups.extend((vehicles[iv], rows[ir]) for iv, ir in inner)
+        else:
+            groups.append((vehicles, rows))
     return groups
