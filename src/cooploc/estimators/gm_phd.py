@@ -257,27 +257,40 @@ class GMPHD:
         return Mixture(np.full(z.shape[0], np.log(self.params.birth_weight)),
                        predicted.mean, predicted.cov)
 
-    def _entry_births(self, frame: Frame, predicted: Mixture, z: FloatArray, R: FloatArray) -> Mixture:
-        """One component of weight 1 per vehicle that entered this step (docs/gm_phd.md).
+    def _entry_births(self, frame: Frame, predicted: Mixture, z: FloatArray, R: FloatArray
+                      ) -> tuple[Mixture, IntArray]:
+        """Births of the vehicles that connected this step, and the rows they take (docs/gm_phd.md).
 
-        The fusion centre knows that a vehicle connected, not which row is its: each birth
-        sits on one of the rows farthest (squared Mahalanobis, position and every other
-        measured component) from every predicted component, with `default_birth_cov` —
-        broad, so that the update puts it on its row.
+        The fusion centre knows how many vehicles connected, not which rows are theirs: the
+        rows left over by an optimal assignment of the rows to the predicted components of
+        weight ≥ 0.5 (squared Mahalanobis cost over every measured component) are the
+        unexplained ones, and the farthest of them (from every component) seed one
+        component of weight 1 each, the row itself as the state (`default_birth_cov` where
+        the row does not measure a component). Those rows are already explained by their
+        birth and are left out of the update.
         """
+        from scipy.optimize import linear_sum_assignment
+
         known = self._present if self.mixture is not None else self.setup.vehicle_prior.ids
         n_new = int((~np.isin(frame.vehicles, known)).sum())
         if n_new == 0 or z.shape[0] == 0:
-            return Mixture.empty(self.dx)
-        if len(predicted):
-            S = symmetrize((self.H @ predicted.cov @ self.H.T)[None] + R[:, None])      # (M, J, dz, dz)
-            r = z[:, None, :] - (predicted.mean @ self.H.T)[None]
-            d2 = np.einsum("mji,mji->mj", r, np.linalg.solve(S, r[..., None])[..., 0]).min(axis=1)
-        else:
-            d2 = np.zeros(z.shape[0])
-        rows = np.argsort(-d2, kind="stable")[:n_new]
+            return Mixture.empty(self.dx), np.zeros(0, dtype=np.int64)
+        free = np.ones(z.shape[0], dtype=bool)
+        d2 = np.zeros(z.shape[0])
+        strong = predicted.take(predicted.log_w >= np.log(0.5))
+        if len(strong):
+            S = symmetrize((self.H @ strong.cov @ self.H.T)[None] + R[:, None])       # (M, J, dz, dz)
+            r = z[:, None, :] - (strong.mean @ self.H.T)[None]
+            cost = np.einsum("mji,mji->mj", r, np.linalg.solve(S, r[..., None])[..., 0])
+            assigned, _ = linear_sum_assignment(cost)
+            free[assigned] = False
+            d2 = cost.min(axis=1)
+        candidates = np.flatnonzero(free) if free.sum() >= n_new else np.arange(z.shape[0])
+        rows = candidates[np.argsort(-d2[candidates], kind="stable")[:n_new]]
         cov = np.repeat(default_birth_cov(self.setup)[None], rows.size, 0)
-        return Mixture(np.zeros(rows.size), z[rows] @ self.H, cov)
+        cols = np.flatnonzero(self.H.any(axis=0))
+        cov[:, cols[:, None], cols[None, :]] = R[rows]
+        return Mixture(np.zeros(rows.size), z[rows] @ self.H, cov), rows
 
     def step(self, frame: Frame) -> Estimate:
         p = self.params
@@ -293,10 +306,14 @@ class GMPHD:
             survived = Mixture(m.log_w + np.log(p.survival_probability), m.mean @ self.F.T,
                                symmetrize(self.F @ m.cov @ self.F.T + self.Q))
             mixture = Mixture.concatenate([survived, self._births()])
-        mixture = Mixture.concatenate([mixture, self._entry_births(frame, mixture, z, R)])
+        born, taken = self._entry_births(frame, mixture, z, R)
         self._present = np.array(frame.vehicles, dtype=np.int64)
+        rest = np.ones(z.shape[0], dtype=bool)
+        rest[taken] = False
         try:
-            updated = phd_update(mixture, z, R, self.H, self.p_d, self.kappa) if len(mixture) else mixture
+            updated = (phd_update(mixture, z[rest], R[rest], self.H, self.p_d, self.kappa) if len(mixture)
+                       else mixture)
+            updated = Mixture.concatenate([updated, born])   # births already hold their rows
             self.mixture = merge_components(updated, p.prune_threshold, p.merge_threshold,
                                             p.max_components)
         except np.linalg.LinAlgError:
