@@ -12,8 +12,17 @@ extraction of exactly one state per connected vehicle (each where the most PHD m
 still unexplained, `extract_count`; Table III's own count is kept in `info`). Estimates
 are set-valued (``info["set_valued"]``).
 
-The update written out, the extraction rule, and the choices the paper leaves open
-(p_D cap, p_S, births, κ = 0 without clutter): docs/gm_phd.md. Stone Soup's GM-PHD is
+In traffic (`sumo-*`, issue 19): a vehicle that connects is born on the row an optimal
+assignment to the predicted components leaves unexplained (as a posterior component; its
+row is left out of the update); one that leaves fades with p_S and the missed-detection
+weight 1 − p_D and is pruned. Where the GNSS rows name their vehicle (`use_identities`),
+each vehicle has its own PHD: components carry its id as a label, a row updates only its
+vehicle's components, merging never joins two labels, and each vehicle's estimate is its
+heaviest component (not set-valued). Anonymous rows (Zhang's) leave every label at −1:
+the plain GM-PHD, unchanged.
+
+The update written out, the extraction rule, births, labels, and the choices the paper
+leaves open (p_D cap, p_S, κ = 0 without clutter): docs/gm_phd.md. Stone Soup's GM-PHD is
 the reference of tests/test_gm_phd.py.
 """
 
@@ -226,7 +235,8 @@ class GMPHDParams(Params):
 class GMPHD:
     """Gaussian-mixture PHD filter of the anonymous GPS rows (Vo & Ma 2006).
 
-    Uses: GNSS rows, anonymous or identified (identities are ignored); not the radar.
+    Uses: GNSS rows, anonymous or identified (one PHD per vehicle, `use_identities`);
+    not the radar, not odometry.
     """
 
     name: ClassVar[str] = "gm-phd"

@@ -41,7 +41,23 @@ Estimates are set-valued: the vehicle blocks carry the ids of `frame.vehicles` i
 but the measurements cannot tell vehicles apart, so ``info["set_valued"]`` is True and
 metrics score them after an optimal assignment (`metrics.evaluate`).
 
-Complexity per step: O(M N) for the gate of M GPS rows, O(N²) for the maps.
+Traffic: the per-radar mode
+---------------------------
+`mode` = "auto" keeps the joint filter above where the setup is the paper's (one radar
+with an unbounded, all-around field: it sees every vehicle) and otherwise runs
+`_step_per_radar` (`sumo-*`): the per-vehicle `gnss-kf` (identified GNSS rows used as
+identified, odometry by stochastic cloning), then eq. (17) per gate group of anonymous
+GPS rows and eq. (18) per radar over the vehicles it sees (module `traffic`), each
+group updated by the filter's `_update_group` (unscented for `sme-ukf`, a Gaussian
+particle filter for `sme-pf`). With no radar rows (and identified GNSS) that is
+`gnss-kf` exactly. Eq. (18) corrects the means only: per-vehicle beliefs cannot hold
+the correlations one scalar over M vehicles creates, and their shrunken marginals
+without them would be overconfident (docs/sme.md, "In traffic"). Skipped radars and
+their reasons: ``info["radar_skipped"]``; used: ``info["radars_used"]``.
+
+Complexity per step: O(M N) for the gate of M GPS rows, O(N²) for the maps; per-radar
+mode, O(n dx³) for the Kalman filters plus, per radar, O(M N) for its in-view set and
+one group update of its M vehicles.
 """
 
 from __future__ import annotations
@@ -285,7 +301,11 @@ class _SmeFilter:
                     continue
                 model = self._group_model(mean[v][:, pos], gnss_var=np.full(2, row_var[r].mean()),
                                           rows=gnss.z[r])
-                mean[v], cov[v] = self._update_group(mean[v], cov[v], model)
+                try:
+                    mean[v], cov[v] = self._update_group(mean[v], cov[v], model)
+                except EstimatorError:   # sums of powers beyond float64 at this size: skipped, counted
+                    info["gnss_groups_skipped"] += 1
+                    continue
                 info["gnss_rows_used"] += int(r.size)
             if info["gnss_groups_skipped"]:
                 info["skipped"].append("gnss")

@@ -59,6 +59,14 @@ Other choices the paper leaves open
   `marginal_moments`); a floor of 1e-9 on each block's covariance keeps it positive
   definite when the particles collapse.
 
+In traffic (per-radar mode, `filter_base`): a particle cloud over the joint state of a
+city (120 and more dimensions) cannot be kept, so the vehicles are per-vehicle Gaussians
+and each group's pseudo-measurement (a radar's eq. 18, a GPS group's eq. 17) is applied
+by a Gaussian particle filter (Kotecha & Djurić 2003, `_update_group`): `n_particles`
+joint draws of the group from the linearized proposal above (one parent, the group's
+Gaussian), weighted by the exact pseudo-likelihood over the linearized one, and
+moment-matched back to the blocks.
+
 `Estimate.info` adds ``ess`` (after the update, before any resampling), ``resampled``,
 ``stages`` (likelihood stages this step: tempering stages of the bootstrap proposal, 1
 for the linearized one), ``acceptance`` (of the moves) and ``degenerate`` (every

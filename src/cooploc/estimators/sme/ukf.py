@@ -27,6 +27,12 @@ Cholesky factor for the sigma points, or S is singular (the sums of powers lose 
 precision when the belief is far from the rows), the filter raises `EstimatorError`
 saying which.
 
+In traffic (per-radar mode, `filter_base`) the same unscented update is applied per
+group (`_update_group`): a radar's eq. (18) over the vehicles it sees, or a gate group's
+eq. (17), on the group's independent Gaussian blocks. A singular innovation covariance
+there skips that group instead of failing the run: a radar with the reason in
+``info["radar_skipped"]``, a GPS group counted in ``info["gnss_groups_skipped"]``.
+
 Complexity per step: O((dx N)³) for the joint covariance and O(dx N · N⁴) for the
 complex moments at the 2 dx N + 1 sigma points.
 """
