@@ -34,6 +34,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from cooploc.association import unexplained_rows
 from cooploc.errors import EstimatorError
 from cooploc.estimators.base import checked_states, default_birth_cov, predict_steps
 from cooploc.gaussian import Gaussians, symmetrize
@@ -305,8 +306,6 @@ class GMPHD:
         the row does not measure a component). Those rows are already explained by their
         birth and are left out of the update.
         """
-        from scipy.optimize import linear_sum_assignment
-
         known = self._present if self.mixture is not None else self.setup.vehicle_prior.ids
         new = frame.vehicles[~np.isin(frame.vehicles, known)]
         n_new = new.size
@@ -316,18 +315,11 @@ class GMPHD:
             rows = np.flatnonzero(np.isin(subject, new))
             rows = rows[np.unique(subject[rows], return_index=True)[1]]   # one row per vehicle
             return self._born_on(rows, z, R, subject[rows]), rows
-        free = np.ones(z.shape[0], dtype=bool)
-        d2 = np.zeros(z.shape[0])
         strong = predicted.take(predicted.log_w >= np.log(0.5))
-        if len(strong):
-            S = symmetrize((self.H @ strong.cov @ self.H.T)[None] + R[:, None])       # (M, J, dz, dz)
-            r = z[:, None, :] - (strong.mean @ self.H.T)[None]
-            cost = np.einsum("mji,mji->mj", r, np.linalg.solve(S, r[..., None])[..., 0])
-            assigned, _ = linear_sum_assignment(cost)
-            free[assigned] = False
-            d2 = cost.min(axis=1)
-        candidates = np.flatnonzero(free) if free.sum() >= n_new else np.arange(z.shape[0])
-        rows = candidates[np.argsort(-d2[candidates], kind="stable")[:n_new]]
+        S = symmetrize((self.H @ strong.cov @ self.H.T)[None] + R[:, None])           # (M, J, dz, dz)
+        r = z[:, None, :] - (strong.mean @ self.H.T)[None]
+        cost = np.einsum("mji,mji->mj", r, np.linalg.solve(S, r[..., None])[..., 0])
+        rows = unexplained_rows(cost, n_new)
         return self._born_on(rows, z, R, None), rows
 
     def _born_on(self, rows: IntArray, z: FloatArray, R: FloatArray, label: IntArray | None) -> Mixture:

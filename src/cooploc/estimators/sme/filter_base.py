@@ -67,7 +67,9 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
+from scipy.stats import chi2
 
+from cooploc.association import unexplained_rows
 from cooploc.errors import EstimatorError
 from cooploc.estimators.base import (
     birth_beliefs,
@@ -133,8 +135,6 @@ class _SmeFilter:
         "odometry": ("odometry",)}
 
     def __init__(self, setup: Setup, params: _SmeParams, rng: np.random.Generator) -> None:
-        from scipy.stats import chi2
-
         self.setup = setup
         self.params = params
         self.rng = rng
@@ -277,6 +277,7 @@ class _SmeFilter:
         before = self._base.vehicles.ids
         batches = dict(frame.batches)
         gnss = self._gnss(frame) if self._anonymous else None
+        rows_full = frame.batches.get("gnss")
         if self._anonymous:
             batches.pop("gnss", None)   # the per-vehicle filter cannot use them; the groups do
         base = self._base.step(Frame(frame.k, frame.t, frame.vehicles, batches, frame.links))
@@ -287,12 +288,26 @@ class _SmeFilter:
         pos = self.pos
         if self._anonymous and gnss is not None and len(gnss):
             born = np.flatnonzero(~np.isin(ids, before) & ~np.isin(ids, self.setup.vehicle_prior.ids))
-            if born.size:   # entering vehicles: at the rows farthest from every other vehicle
-                others = np.delete(mean[:, pos], born, axis=0)
-                mean[born], cov[born] = self._births(ids[born], frame, others)
-            var = np.einsum("nii->n", cov[:, pos][:, :, pos]) / 2
+            H = self.setup.sensors["gnss"].observation_matrix(self.dx)
+            S = (H @ cov @ H.T)[None] + rows_full.cov[:, None]                        # (M, N, dz, dz)
+            r_full = rows_full.z[:, None, :] - (mean @ H.T)[None]
+            d2 = np.einsum("mni,mni->mn", r_full, np.linalg.solve(S, r_full[..., None])[..., 0])
+            if born.size:   # entering vehicles: on the rows the others explain least
+                continuing = np.setdiff1d(np.arange(ids.size), born)
+                rows = unexplained_rows(d2[:, continuing], born.size)
+                cols = np.flatnonzero(H.any(axis=0))
+                for i, row in zip(born[: rows.size], rows, strict=False):   # few per step
+                    # every component the row measures (velocity too), the rest broad
+                    mean[i] = 0.0
+                    mean[i, cols] = rows_full.z[row]
+                    cov[i] = default_birth_cov(self.setup)
+                    cov[i][np.ix_(cols, cols)] = rows_full.cov[row]
+                S = (H @ cov[born] @ H.T)[None] + rows_full.cov[:, None]
+                r_full = rows_full.z[:, None, :] - (mean[born] @ H.T)[None]
+                d2[:, born] = np.einsum("mni,mni->mn", r_full, np.linalg.solve(S, r_full[..., None])[..., 0])
             row_var = np.einsum("mii->m", gnss.cov) / 2
-            for v, r in gate_groups(gnss.z, row_var, mean[:, pos], var, self._gate, self.params.max_group):
+            gate = chi2.ppf(self.params.gate_probability, df=H.shape[0])
+            for v, r in gate_groups(d2, gate, self.params.max_group):
                 if v.size == 0:
                     info["gnss_rows_gated"] += int(r.size)
                     continue

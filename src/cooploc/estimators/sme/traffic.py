@@ -42,9 +42,14 @@ Anonymous GPS groups (`gate_groups`)
 ------------------------------------
 With anonymous GPS rows in traffic the N of eq. (17) would be every vehicle in the city
 (polynomials of order 30 and more, which the paper's §4.2.3 already finds hopeless at
-10). Rows and predicted vehicles are linked where a row lies within the χ²₂ gate of a
-vehicle; each connected component of that bipartite graph is one SME group (a group
-larger than `max_group` is split again with half the gate, down to a gate of 2). A group
+10). Rows and predicted vehicles are linked where a row lies within the gate of a vehicle
+(squared Mahalanobis distance over every component the row measures — velocity too,
+which tells a stopped queue from the traffic passing it — against the χ² quantile of
+`gate_probability` with that many degrees of freedom); each connected component of
+that bipartite graph is one SME group (a group larger than `max_group` is split again
+with half the gate, down to a gate of 2). Vehicles that enter are placed on the rows an
+optimal assignment to the other vehicles leaves unexplained
+(`association.unexplained_rows`), with every component the row measures. A group
 with as many rows as vehicles and at most `max_group` of them gets its own eq. (17)
 update (one vehicle and one row: the complex power sum s₁ = x + i y is the row itself,
 a Kalman update); other groups are skipped with the reason recorded.
@@ -192,17 +197,15 @@ class RadarFields:
         return np.sort(chosen), ""
 
 
-def gate_groups(z: FloatArray, row_var: FloatArray, p: FloatArray, var: FloatArray, gate: float,
-                max_size: int | None = None) -> list[tuple[IntArray, IntArray]]:
-    """The SME groups of anonymous rows z (M, 2) (isotropic variances row_var (M,)) and
-    vehicles p (N, 2) (var (N,)): connected components of the gate graph, as (vehicles, rows).
+def gate_groups(d2: FloatArray, gate: float, max_size: int | None = None) -> list[tuple[IntArray, IntArray]]:
+    """The SME groups of M anonymous rows and N vehicles: connected components of the gate
+    graph, as (vehicles, rows), from the squared Mahalanobis distances d2 (M, N).
 
-    A row and a vehicle are linked where ‖z − p‖²/(var + row_var) ≤ gate. A group of more
-    than `max_size` vehicles or rows is split again with half the gate, down to a gate of
-    1 (one σ), so that dense traffic still gives groups of a size eq. (17) can hold.
+    A row and a vehicle are linked where d2 ≤ gate. A group of more than `max_size`
+    vehicles or rows is split again with half the gate, down to a gate of 2, so that dense
+    traffic still gives groups of a size eq. (17) can hold.
     """
-    M, N = z.shape[0], p.shape[0]
-    d2 = ((z[:, None, :] - p[None]) ** 2).sum(-1) / (row_var[:, None] + var[None])
+    M, N = d2.shape
     r, v = np.nonzero(d2 <= gate)
     graph = coo_matrix((np.ones(r.size), (r, M + v)), shape=(M + N, M + N))
     _, label = connected_components(graph, directed=False)
@@ -210,7 +213,7 @@ def gate_groups(z: FloatArray, row_var: FloatArray, p: FloatArray, var: FloatArr
     for g in np.unique(label):
         rows, vehicles = np.flatnonzero(label[:M] == g), np.flatnonzero(label[M:] == g)
         if max_size is not None and max(rows.size, vehicles.size) > max_size and gate > 2.0:
-            inner = gate_groups(z[rows], row_var[rows], p[vehicles], var[vehicles], gate / 2, max_size)
+            inner = gate_groups(d2[np.ix_(rows, vehicles)], gate / 2, max_size)
             groups.extend((vehicles[iv], rows[ir]) for iv, ir in inner)
         else:
             groups.append((vehicles, rows))
