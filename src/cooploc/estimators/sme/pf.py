@@ -87,6 +87,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
+from cooploc.errors import EstimatorError
 from cooploc.estimators.sme.filter_base import _SmeFilter, _SmeParams
 from cooploc.estimators.sme.proposal import LinearizedProposal, linearized_proposal
 from cooploc.estimators.sme.pseudo_measurement import PseudoMeasurement
@@ -435,8 +436,9 @@ class SmePF(_SmeFilter):
             L = np.linalg.cholesky(cov)
             x = prior + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(prior.shape))
             log_w = model.log_likelihood(x[:, :, self.pos])
-        if not np.isfinite(log_w).any():
-            return mean, cov   # every weight vanished: the group keeps its prior (no update)
+        if not np.isfinite(log_w).any():   # the caller skips the group and says why
+            raise EstimatorError(self.name, f"every one of the {P} particles of a group of {mean.shape[0]} "
+                                 "vehicles has a vanishing pseudo-likelihood")
         m, c = marginal_moments(x, np.where(np.isfinite(log_w), log_w, -np.inf))
         return m, c + 1e-9 * np.eye(self.dx)
 
