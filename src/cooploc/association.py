@@ -63,6 +63,7 @@ __all__ = [
     "enumerate_associations",
     "exact_marginals",
     "padded_groups",
+    "unexplained_rows",
 ]
 
 #: Smallest relative weight of the miss / clutter options (see module docstring).
@@ -342,3 +343,22 @@ def padded_groups(group: npt.ArrayLike, n_groups: int) -> tuple[IntArray, npt.ND
     index[group[order], slot] = order
     mask[group[order], slot] = True
     return index, mask
+
+
+def unexplained_rows(cost: FloatArray, n: int) -> IntArray:
+    """The `n` rows that the tracks explain least, for births: cost (M, J) of row m on track j
+    (e.g. squared Mahalanobis distances). The rows an optimal one-to-one assignment
+    (`scipy.optimize.linear_sum_assignment`) leaves over are the unexplained ones; of those
+    (of all rows where fewer are left), the `n` with the largest cost to their nearest track.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    M = cost.shape[0]
+    free = np.ones(M, dtype=bool)
+    nearest = np.zeros(M)
+    if cost.shape[1]:
+        assigned, _ = linear_sum_assignment(cost)
+        free[assigned] = False
+        nearest = cost.min(axis=1)
+    candidates = np.flatnonzero(free) if free.sum() >= n else np.arange(M)
+    return candidates[np.argsort(-nearest[candidates], kind="stable")[:n]]

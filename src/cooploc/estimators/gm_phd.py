@@ -12,8 +12,17 @@ extraction of exactly one state per connected vehicle (each where the most PHD m
 still unexplained, `extract_count`; Table III's own count is kept in `info`). Estimates
 are set-valued (``info["set_valued"]``).
 
-The update written out, the extraction rule, and the choices the paper leaves open
-(p_D cap, p_S, births, κ = 0 without clutter): docs/gm_phd.md. Stone Soup's GM-PHD is
+In traffic (`sumo-*`, issue 19): a vehicle that connects is born on the row an optimal
+assignment to the predicted components leaves unexplained (as a posterior component; its
+row is left out of the update); one that leaves fades with p_S and the missed-detection
+weight 1 − p_D and is pruned. Where the GNSS rows name their vehicle (`use_identities`),
+each vehicle has its own PHD: components carry its id as a label, a row updates only its
+vehicle's components, merging never joins two labels, and each vehicle's estimate is its
+heaviest component (not set-valued). Anonymous rows (Zhang's) leave every label at −1:
+the plain GM-PHD, unchanged.
+
+The update written out, the extraction rule, births, labels, and the choices the paper
+leaves open (p_D cap, p_S, κ = 0 without clutter): docs/gm_phd.md. Stone Soup's GM-PHD is
 the reference of tests/test_gm_phd.py.
 """
 
@@ -25,6 +34,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from cooploc.association import unexplained_rows
 from cooploc.errors import EstimatorError
 from cooploc.estimators.base import checked_states, default_birth_cov, predict_steps
 from cooploc.gaussian import Gaussians, symmetrize
@@ -38,40 +48,52 @@ __all__ = ["GMPHD", "GMPHDParams", "Mixture", "extract_count", "merge_components
 
 @dataclass(frozen=True, slots=True)
 class Mixture:
-    """A Gaussian mixture intensity: log_w (J,), mean (J, dx), cov (J, dx, dx)."""
+    """A Gaussian mixture intensity: log_w (J,), mean (J, dx), cov (J, dx, dx), and
+    label (J,) the vehicle id a component is of, −1 where unknown (None: all −1)."""
 
     log_w: FloatArray
     mean: FloatArray
     cov: FloatArray
+    label: IntArray | None = None
 
     def __len__(self) -> int:
         return self.log_w.size
+
+    @property
+    def labels(self) -> IntArray:
+        return np.full(self.log_w.size, -1, dtype=np.int64) if self.label is None else self.label
 
     @classmethod
     def empty(cls, dx: int) -> Mixture:
         return cls(np.zeros(0), np.zeros((0, dx)), np.zeros((0, dx, dx)))
 
     def take(self, rows: Any) -> Mixture:
-        return Mixture(self.log_w[rows], self.mean[rows], self.cov[rows])
+        return Mixture(self.log_w[rows], self.mean[rows], self.cov[rows],
+                       None if self.label is None else self.label[rows])
 
     @staticmethod
     def concatenate(parts: list[Mixture]) -> Mixture:
+        labelled = any(p.label is not None for p in parts)
         return Mixture(np.concatenate([p.log_w for p in parts]),
                        np.concatenate([p.mean for p in parts]),
-                       np.concatenate([p.cov for p in parts]))
+                       np.concatenate([p.cov for p in parts]),
+                       np.concatenate([p.labels for p in parts]) if labelled else None)
 
 
 def phd_update(prior: Mixture, z: FloatArray, R: FloatArray, H: FloatArray,
-               detection_probability: float, clutter_intensity: float) -> Mixture:
+               detection_probability: float, clutter_intensity: float,
+               subject: IntArray | None = None) -> Mixture:
     """The GM-PHD update (Vo & Ma Table I, steps 3–4) for rows z (M, dz), R (M, dz, dz).
 
     Returns the (1 + M) J components: the missed-detection copies first, then for each
-    row the J updated components.
+    row the J updated components. With `subject` (M,) (−1: anonymous), a row that names
+    a vehicle updates only the components of that label or of none (label −1), and the
+    updated components take its label: each labelled vehicle has its own PHD.
     """
     J, dx = prior.mean.shape
     M = z.shape[0]
     log_pd = np.log(detection_probability)
-    missed = Mixture(prior.log_w + np.log1p(-detection_probability), prior.mean, prior.cov)
+    missed = Mixture(prior.log_w + np.log1p(-detection_probability), prior.mean, prior.cov, prior.label)
     if M == 0 or J == 0:
         return missed
     PHt = prior.cov @ H.T                                               # (J, dx, dz)
@@ -89,11 +111,17 @@ def phd_update(prior: Mixture, z: FloatArray, R: FloatArray, H: FloatArray,
     cov = symmetrize(I_KH @ prior.cov[:, None] @ np.swapaxes(I_KH, -1, -2)
                      + K @ R[None] @ np.swapaxes(K, -1, -2))
     numerator = log_pd + prior.log_w[:, None] + log_q                    # log p_D w_j q_j(z)
+    label = None
+    if subject is not None:
+        other = (subject[None] >= 0) & (prior.labels[:, None] >= 0) & (prior.labels[:, None] != subject[None])
+        numerator = np.where(other, -np.inf, numerator)                  # another vehicle's PHD
+        label = np.where(subject[:, None] >= 0, subject[:, None], prior.labels[None]).reshape(-1)
     total = log_sum_exp(numerator, axis=0)                                  # log Σ_l p_D w_l q_l(z)
     log_kappa = np.log(clutter_intensity) if clutter_intensity > 0 else -np.inf
-    log_w = numerator - np.logaddexp(log_kappa, total)[None]              # eq. (26)
+    with np.errstate(invalid="ignore"):   # a row no component may explain adds nothing
+        log_w = np.nan_to_num(numerator - np.logaddexp(log_kappa, total)[None], nan=-np.inf)  # eq. (26)
     detected = Mixture(log_w.T.reshape(-1), np.swapaxes(mean, 0, 1).reshape(-1, dx),
-                       np.swapaxes(cov, 0, 1).reshape(-1, dx, dx))
+                       np.swapaxes(cov, 0, 1).reshape(-1, dx, dx), label)
     return Mixture.concatenate([missed, detected])
 
 
@@ -155,13 +183,14 @@ def merge_components(mixture: Mixture, prune_threshold: float, merge_threshold: 
         return m
     remaining = np.ones(len(m), dtype=bool)
     precision_L = np.linalg.cholesky(m.cov)                               # P_i = L Lᵀ
-    out_w, out_m, out_P = [], [], []
+    out_w, out_m, out_P, out_l = [], [], [], []
     while remaining.any():
         idx = np.flatnonzero(remaining)
         j = idx[np.argmax(m.log_w[idx])]                                  # heaviest component
         d = m.mean[idx] - m.mean[j]
         white = np.linalg.solve(precision_L[idx], d[..., None])[..., 0]
-        group = idx[(white**2).sum(-1) <= merge_threshold]                # (m_i − m_j)ᵀ P_i⁻¹ (…) ≤ U
+        # (m_i − m_j)ᵀ P_i⁻¹ (…) ≤ U, never across two vehicles' labels
+        group = idx[((white**2).sum(-1) <= merge_threshold) & (m.labels[idx] == m.labels[j])]
         log_w = log_sum_exp(m.log_w[group], axis=None)
         w = np.exp(m.log_w[group] - log_w)                                # normalised within the group
         mean = w @ m.mean[group]
@@ -170,8 +199,10 @@ def merge_components(mixture: Mixture, prune_threshold: float, merge_threshold: 
         out_w.append(log_w)
         out_m.append(mean)
         out_P.append(symmetrize(cov))
+        out_l.append(m.labels[j])
         remaining[group] = False
-    merged = Mixture(np.array(out_w), np.array(out_m), np.array(out_P))
+    merged = Mixture(np.array(out_w), np.array(out_m), np.array(out_P),
+                     None if m.label is None else np.array(out_l, dtype=np.int64))
     if len(merged) > max_components:
         merged = merged.take(np.argsort(-merged.log_w, kind="stable")[:max_components])
     return merged
@@ -187,6 +218,9 @@ class GMPHDParams(Params):
     prune_threshold : T of Table II.
     merge_threshold : U of Table II (squared Mahalanobis distance).
     max_components : J_max of Table II.
+    use_identities : where the GNSS rows name their vehicle (`GnssPosition`), each vehicle
+        has its own PHD (components labelled with its id; docs/gm_phd.md); False: the
+        identities are ignored, as with anonymous rows.
     """
 
     survival_probability: float = param(0.99, gt=0, le=1)
@@ -195,13 +229,15 @@ class GMPHDParams(Params):
     prune_threshold: float = param(1e-5, gt=0, lt=1)
     merge_threshold: float = param(4.0, ge=0)
     max_components: int = param(100, ge=1)
+    use_identities: bool = True
 
 
 @register_estimator
 class GMPHD:
     """Gaussian-mixture PHD filter of the anonymous GPS rows (Vo & Ma 2006).
 
-    Uses: GNSS rows, anonymous or identified (identities are ignored); not the radar.
+    Uses: GNSS rows, anonymous or identified (one PHD per vehicle, `use_identities`);
+    not the radar, not odometry.
     """
 
     name: ClassVar[str] = "gm-phd"
@@ -230,8 +266,10 @@ class GMPHD:
         if setup.clutter_rate > 0 and setup.clutter_region is not None:
             area = float(np.prod(np.diff(setup.clutter_region, axis=1)))
             self.kappa = setup.clutter_rate / area
+        self.labelled = params.use_identities and getattr(sensor, "name", "") == "gnss-position"
         self.mixture: Mixture | None = None
         self._last_rows: tuple[FloatArray, FloatArray] | None = None
+        self._present: IntArray = np.zeros(0, dtype=np.int64)   # the vehicles of the last step
 
     def _initial(self, frame: Frame) -> Mixture:
         prior = self.setup.vehicle_prior
@@ -241,7 +279,7 @@ class GMPHD:
         p = prior.take(ids)
         predicted = predict_steps(Gaussians(p.mean, p.cov), self.setup.vehicle_motion, self.setup.dt,
                                   frame.k)
-        return Mixture(np.zeros(ids.size), predicted.mean, predicted.cov)
+        return Mixture(np.zeros(ids.size), predicted.mean, predicted.cov, ids if self.labelled else None)
 
     def _births(self) -> Mixture:
         if self.params.birth_weight <= 0 or self._last_rows is None or self._last_rows[0].size == 0:
@@ -256,22 +294,65 @@ class GMPHD:
         return Mixture(np.full(z.shape[0], np.log(self.params.birth_weight)),
                        predicted.mean, predicted.cov)
 
+    def _entry_births(self, frame: Frame, predicted: Mixture, z: FloatArray, R: FloatArray,
+                      subject: IntArray) -> tuple[Mixture, IntArray]:
+        """Births of the vehicles that connected this step, and the rows they take (docs/gm_phd.md).
+
+        The fusion centre knows how many vehicles connected, not which rows are theirs: the
+        rows left over by an optimal assignment of the rows to the predicted components of
+        weight ≥ 0.5 (squared Mahalanobis cost over every measured component) are the
+        unexplained ones, and the farthest of them (from every component) seed one
+        component of weight 1 each, the row itself as the state (`default_birth_cov` where
+        the row does not measure a component). Those rows are already explained by their
+        birth and are left out of the update.
+        """
+        known = self._present if self.mixture is not None else self.setup.vehicle_prior.ids
+        new = frame.vehicles[~np.isin(frame.vehicles, known)]
+        n_new = new.size
+        if n_new == 0 or z.shape[0] == 0:
+            return Mixture.empty(self.dx), np.zeros(0, dtype=np.int64)
+        if self.labelled:   # the rows that name a vehicle that just connected
+            rows = np.flatnonzero(np.isin(subject, new))
+            rows = rows[np.unique(subject[rows], return_index=True)[1]]   # one row per vehicle
+            return self._born_on(rows, z, R, subject[rows]), rows
+        strong = predicted.take(predicted.log_w >= np.log(0.5))
+        S = symmetrize((self.H @ strong.cov @ self.H.T)[None] + R[:, None])           # (M, J, dz, dz)
+        r = z[:, None, :] - (strong.mean @ self.H.T)[None]
+        cost = np.einsum("mji,mji->mj", r, np.linalg.solve(S, r[..., None])[..., 0])
+        rows = unexplained_rows(cost, n_new)
+        return self._born_on(rows, z, R, None), rows
+
+    def _born_on(self, rows: IntArray, z: FloatArray, R: FloatArray, label: IntArray | None) -> Mixture:
+        """Components of weight 1 at `rows`: the row as the state, `default_birth_cov` where
+        the row does not measure a component."""
+        cov = np.repeat(default_birth_cov(self.setup)[None], rows.size, 0)
+        cols = np.flatnonzero(self.H.any(axis=0))
+        cov[:, cols[:, None], cols[None, :]] = R[rows]
+        return Mixture(np.zeros(rows.size), z[rows] @ self.H, cov, label)
+
     def step(self, frame: Frame) -> Estimate:
         p = self.params
+        gnss = frame.batches.get("gnss")
+        dz = self.H.shape[0]
+        z = gnss.z if gnss is not None else np.zeros((0, dz))
+        R = gnss.cov if gnss is not None else np.zeros((0, dz, dz))
+        subject = gnss.subject if gnss is not None else np.zeros(0, dtype=np.int64)
         if self.mixture is None:
             mixture = self._initial(frame)
         else:
             m = self.mixture
             # prediction, Table I step 2: w ← p_S w, m ← F m, P ← F P Fᵀ + Q, plus births
             survived = Mixture(m.log_w + np.log(p.survival_probability), m.mean @ self.F.T,
-                               symmetrize(self.F @ m.cov @ self.F.T + self.Q))
+                               symmetrize(self.F @ m.cov @ self.F.T + self.Q), m.label)
             mixture = Mixture.concatenate([survived, self._births()])
-        gnss = frame.batches.get("gnss")
-        dz = self.H.shape[0]
-        z = gnss.z if gnss is not None else np.zeros((0, dz))
-        R = gnss.cov if gnss is not None else np.zeros((0, dz, dz))
+        born, taken = self._entry_births(frame, mixture, z, R, subject)
+        self._present = np.array(frame.vehicles, dtype=np.int64)
+        rest = np.ones(z.shape[0], dtype=bool)
+        rest[taken] = False
         try:
-            updated = phd_update(mixture, z, R, self.H, self.p_d, self.kappa) if len(mixture) else mixture
+            updated = (phd_update(mixture, z[rest], R[rest], self.H, self.p_d, self.kappa,
+                                  subject[rest] if self.labelled else None) if len(mixture) else mixture)
+            updated = Mixture.concatenate([updated, born])   # births already hold their rows
             self.mixture = merge_components(updated, p.prune_threshold, p.merge_threshold,
                                             p.max_components)
         except np.linalg.LinAlgError:
@@ -288,7 +369,7 @@ class GMPHD:
         n = frame.vehicles.size
         weights = np.exp(m.log_w)
         info: dict[str, Any] = {
-            "set_valued": True,
+            "set_valued": not self.labelled,
             "cardinality": float(weights.sum()),
             "n_components": len(m),
             "n_extracted_vo_ma": int(np.round(weights[weights > 0.5]).sum()),
@@ -298,6 +379,16 @@ class GMPHD:
         if len(m) == 0:  # nothing left to extract: broad beliefs (never seen in Zhang's setting)
             cov = np.repeat(default_birth_cov(self.setup)[None], n, 0)
             return Estimate(StateSet(np.sort(frame.vehicles), np.zeros((n, self.dx)), cov), None, info)
+        ids = np.sort(frame.vehicles)
+        if self.labelled:   # each vehicle's heaviest component; broad where it has none left
+            mean = np.zeros((n, self.dx))
+            cov = np.repeat(default_birth_cov(self.setup)[None], n, 0)
+            order = np.lexsort((-m.log_w, m.labels))                   # by label, heaviest first
+            first = order[np.r_[True, np.diff(m.labels[order]) != 0]]
+            at = np.searchsorted(ids, m.labels[first])
+            ok = (at < n) & (ids[np.minimum(at, n - 1)] == m.labels[first])
+            mean[at[ok]], cov[at[ok]] = m.mean[first[ok]], m.cov[first[ok]]
+            return Estimate(checked_states(self.name, "vehicle", ids, mean, cov), None, info)
         picks = extract_count(m, n, self.position, self.params.merge_threshold)
-        vehicles = checked_states(self.name, "vehicle", np.sort(frame.vehicles), m.mean[picks], m.cov[picks])
+        vehicles = checked_states(self.name, "vehicle", ids, m.mean[picks], m.cov[picks])
         return Estimate(vehicles, None, info)

@@ -14,7 +14,12 @@ The problem apart from the filters that use it:
   Newton's identities, and `PseudoMeasurement` (eq. 19 of one step; its numba
   likelihood kernel lives in the private `_kernels`, compiled on first use);
 - `filter_base` — what both filters share: parameters, vehicles entering and leaving,
-  GPS gating against clutter, the per-step assembly of eq. (19);
+  GPS gating against clutter, the per-step assembly of eq. (19), and the two modes:
+  ``"joint"`` (the paper's: one radar that sees every vehicle, `zhang2016-*`) and
+  ``"per-radar"`` (traffic, `sumo-*`: the `gnss-kf` filter, then eq. 18 per radar over the
+  vehicles it sees and eq. 17 per gate group of anonymous GPS rows);
+- `traffic` — which vehicles each radar sees (its pose registered and tracked by the
+  estimator) and the gate groups of anonymous rows;
 - `pf` — `sme-pf` (`SmePF`, `SmePFParams`): the paper's particle filter, by default with
   the linearized optimal proposal of `proposal` (an auxiliary particle filter), or
   drawing from the motion model (``proposal="bootstrap"``);

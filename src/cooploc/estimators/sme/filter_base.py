@@ -41,7 +41,23 @@ Estimates are set-valued: the vehicle blocks carry the ids of `frame.vehicles` i
 but the measurements cannot tell vehicles apart, so ``info["set_valued"]`` is True and
 metrics score them after an optimal assignment (`metrics.evaluate`).
 
-Complexity per step: O(M N) for the gate of M GPS rows, O(N²) for the maps.
+Traffic: the per-radar mode
+---------------------------
+`mode` = "auto" keeps the joint filter above where the setup is the paper's (one radar
+with an unbounded, all-around field: it sees every vehicle) and otherwise runs
+`_step_per_radar` (`sumo-*`): the per-vehicle `gnss-kf` (identified GNSS rows used as
+identified, odometry by stochastic cloning), then eq. (17) per gate group of anonymous
+GPS rows and eq. (18) per radar over the vehicles it sees (module `traffic`), each
+group updated by the filter's `_update_group` (unscented for `sme-ukf`, a Gaussian
+particle filter for `sme-pf`). With no radar rows (and identified GNSS) that is
+`gnss-kf` exactly. Eq. (18) corrects the means only: per-vehicle beliefs cannot hold
+the correlations one scalar over M vehicles creates, and their shrunken marginals
+without them would be overconfident (docs/sme.md, "In traffic"). Skipped radars and
+their reasons: ``info["radar_skipped"]``; used: ``info["radars_used"]``.
+
+Complexity per step: O(M N) for the gate of M GPS rows, O(N²) for the maps; per-radar
+mode, O(n dx³) for the Kalman filters plus, per radar, O(M N) for its in-view set and
+one group update of its M vehicles.
 """
 
 from __future__ import annotations
@@ -51,7 +67,10 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
+from scipy.stats import chi2
 
+from cooploc.association import unexplained_rows
+from cooploc.errors import EstimatorError
 from cooploc.estimators.base import (
     birth_beliefs,
     checked_states,
@@ -64,8 +83,12 @@ from cooploc.estimators.sme.pseudo_measurement import (
     complex_power_sums,
     power_sums,
     topology,
+    topology_moments,
 )
+from cooploc.estimators.sme.traffic import RadarFields, gate_groups
+from cooploc.gaussian import Gaussians
 from cooploc.params import Params, param
+from cooploc.sensors import InfrastructureRadar
 from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup
 
 
@@ -80,6 +103,14 @@ class _SmeParams(Params):
     jitter : relative regularisation of the pseudo-measurement covariance.
     gate_probability : χ²₂ gate of GPS rows against the predicted vehicles (clutter).
     use_radar : use the topology pseudo-measurement of the radar (eq. 18).
+    mode : "auto" — "joint" where the setup is the paper's (one radar whose field is
+        unbounded: it sees every vehicle), "per-radar" otherwise; "joint" — one
+        pseudo-measurement over all present vehicles (eq. 19); "per-radar" — traffic:
+        eq. (18) per radar over the vehicles it sees, eq. (17) per gate group
+        (`cooploc.estimators.sme.traffic`).
+    view_confidence : per-radar mode: least probability that the vehicles taken as a
+        radar's in-view set are exactly the ones it sees (else that radar is skipped).
+    max_group : per-radar mode: largest group of anonymous GPS rows given one eq. (17).
     """
 
     form: Literal["axes", "complex"] = "complex"
@@ -87,6 +118,9 @@ class _SmeParams(Params):
     jitter: float = param(1e-9, ge=0, lt=1)
     gate_probability: float = param(0.9999, gt=0, lt=1)
     use_radar: bool = True
+    mode: Literal["auto", "joint", "per-radar"] = "auto"
+    view_confidence: float = param(0.9, gt=0, le=1)
+    max_group: int = param(5, ge=1, le=10)
 
 
 class _SmeFilter:
@@ -97,11 +131,10 @@ class _SmeFilter:
     default_preset: ClassVar[str] = "zhang2016-cv"
     required_sensors: ClassVar[tuple[str, ...]] = ("gnss", "radar")
     usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
-        "gnss": ("anonymous-position", "gnss-position"), "radar": ("infrastructure-radar",)}
+        "gnss": ("anonymous-position", "gnss-position"), "radar": ("infrastructure-radar",),
+        "odometry": ("odometry",)}
 
     def __init__(self, setup: Setup, params: _SmeParams, rng: np.random.Generator) -> None:
-        from scipy.stats import chi2
-
         self.setup = setup
         self.params = params
         self.rng = rng
@@ -113,7 +146,20 @@ class _SmeFilter:
             self.Q = self.Q[0]
         self.ids: IntArray = np.zeros(0, np.int64)
         self._gate = chi2.ppf(params.gate_probability, df=2)
+        self._gate_1 = chi2.ppf(params.gate_probability, df=1)
         self._gnss_part = gnss_position_part(setup, self.name)
+        radar = setup.sensors.get("radar")
+        paper = (radar is not None and len(setup.infrastructure_ids) <= 1
+                 and np.isinf(getattr(radar, "max_range", np.inf))
+                 and getattr(radar, "field_of_view", np.pi) >= np.pi)
+        self.per_radar = params.mode == "per-radar" or (params.mode == "auto" and not paper)
+        if self.per_radar:
+            from cooploc.estimators.gnss_kf import GnssKF  # the no-radar filter it reduces to
+
+            self._anonymous = getattr(setup.sensors.get("gnss"), "name", "") == "anonymous-position"
+            self._base = GnssKF(setup, GnssKF.Params(), rng)
+            self._fields = (RadarFields(radar, self._gate, params.view_confidence)
+                            if isinstance(radar, InfrastructureRadar) else None)
 
     def _gnss(self, frame: Frame) -> Batch | None:
         """The frame's GNSS rows as position fixes (module docstring)."""
@@ -191,6 +237,127 @@ class _SmeFilter:
         model = PseudoMeasurement(centre, scale, self.params.form, gnss_var, radar_var, y_gnss, y_radar,
                                   self.params.jitter)
         return model, info
+
+    # -- per-radar mode (traffic) ---------------------------------------------------------
+    def _update_group(self, mean: FloatArray, cov: FloatArray, model: PseudoMeasurement
+                      ) -> tuple[FloatArray, FloatArray]:
+        """Update the vehicles of one group, mean (n, dx) and cov (n, dx, dx) independent
+        blocks, with its pseudo-measurement: the new means and marginal covariances."""
+        raise NotImplementedError
+
+    def _group_model(self, p: FloatArray, *, gnss_var: FloatArray | None = None,
+                     rows: FloatArray | None = None, y_radar: float | None = None,
+                     radar_var: float = 1.0) -> PseudoMeasurement:
+        """Eq. (17) of GPS rows (global, (n, 2)) or eq. (18) of radar rows T, for the group
+        at predicted positions p (n, 2), scaled as in the joint mode."""
+        centre = p.mean(axis=0)
+        scale = max(float(np.sqrt(((p - centre) ** 2).sum(-1).mean())), self.params.min_scale)
+        n = p.shape[0]
+        y_gnss = None
+        if rows is not None:
+            u = (rows - centre) / scale
+            y_gnss = (complex_power_sums(u, n) if self.params.form == "complex"
+                      else np.concatenate([power_sums(u[:, a], n) for a in range(2)]))
+            gnss_var = gnss_var / scale**2
+        return PseudoMeasurement(centre, scale, self.params.form,
+                                 np.ones(2) if gnss_var is None else gnss_var, radar_var / scale**2,
+                                 y_gnss, None if y_radar is None else y_radar / scale**2, self.params.jitter)
+
+    def _topology_gate(self, p: FloatArray, var: FloatArray, T: float, radar_var: float) -> float:
+        """NIS of the measured T against its prediction from the beliefs (linearized, 1 dof)."""
+        n = p.shape[0]
+        mean_T, var_T = topology_moments(p, radar_var)
+        grad = 2.0 * n * (p - p.mean(axis=0))                               # ∇_{p_i} T
+        S = float(var_T + (grad**2).sum(-1) @ var)
+        return float((T - mean_T) ** 2 / S)
+
+    def _step_per_radar(self, frame: Frame) -> Estimate:
+        """One step in traffic (module `traffic`): the no-radar filter, then eq. (17) per GPS
+        group (anonymous rows only) and eq. (18) per radar over the vehicles it sees."""
+        before = self._base.vehicles.ids
+        batches = dict(frame.batches)
+        gnss = self._gnss(frame) if self._anonymous else None
+        rows_full = frame.batches.get("gnss")
+        if self._anonymous:
+            batches.pop("gnss", None)   # the per-vehicle filter cannot use them; the groups do
+        base = self._base.step(Frame(frame.k, frame.t, frame.vehicles, batches, frame.links))
+        ids = self._base.vehicles.ids
+        mean, cov = base.vehicles.mean.copy(), base.vehicles.cov.copy()
+        info: dict[str, Any] = {"skipped": [], "gnss_rows_used": 0, "gnss_rows_gated": 0,
+                                "radars_used": 0, "radar_skipped": {}, "gnss_groups_skipped": 0}
+        pos = self.pos
+        if self._anonymous and gnss is not None and len(gnss):
+            born = np.flatnonzero(~np.isin(ids, before) & ~np.isin(ids, self.setup.vehicle_prior.ids))
+            H = self.setup.sensors["gnss"].observation_matrix(self.dx)
+            S = (H @ cov @ H.T)[None] + rows_full.cov[:, None]                        # (M, N, dz, dz)
+            r_full = rows_full.z[:, None, :] - (mean @ H.T)[None]
+            d2 = np.einsum("mni,mni->mn", r_full, np.linalg.solve(S, r_full[..., None])[..., 0])
+            if born.size:   # entering vehicles: on the rows the others explain least
+                continuing = np.setdiff1d(np.arange(ids.size), born)
+                rows = unexplained_rows(d2[:, continuing], born.size)
+                cols = np.flatnonzero(H.any(axis=0))
+                for i, row in zip(born[: rows.size], rows, strict=False):   # few per step
+                    # every component the row measures (velocity too), the rest broad
+                    mean[i] = 0.0
+                    mean[i, cols] = rows_full.z[row]
+                    cov[i] = default_birth_cov(self.setup)
+                    cov[i][np.ix_(cols, cols)] = rows_full.cov[row]
+                S = (H @ cov[born] @ H.T)[None] + rows_full.cov[:, None]
+                r_full = rows_full.z[:, None, :] - (mean[born] @ H.T)[None]
+                d2[:, born] = np.einsum("mni,mni->mn", r_full, np.linalg.solve(S, r_full[..., None])[..., 0])
+            row_var = np.einsum("mii->m", gnss.cov) / 2
+            gate = chi2.ppf(self.params.gate_probability, df=H.shape[0])
+            for v, r in gate_groups(d2, gate, self.params.max_group):
+                if v.size == 0:
+                    info["gnss_rows_gated"] += int(r.size)
+                    continue
+                if v.size != r.size or v.size > self.params.max_group:
+                    info["gnss_groups_skipped"] += 1
+                    continue
+                model = self._group_model(mean[v][:, pos], gnss_var=np.full(2, row_var[r].mean()),
+                                          rows=gnss.z[r])
+                try:
+                    mean[v], cov[v] = self._update_group(mean[v], cov[v], model)
+                except EstimatorError:   # sums of powers beyond float64 at this size: skipped, counted
+                    info["gnss_groups_skipped"] += 1
+                    continue
+                info["gnss_rows_used"] += int(r.size)
+            if info["gnss_groups_skipped"]:
+                info["skipped"].append("gnss")
+        radar = frame.batches.get("radar")
+        if self.params.use_radar and self._fields is not None and radar is not None and len(radar) \
+                and ids.size:
+            for sensor in np.unique(radar.sensor):
+                rows = np.flatnonzero(radar.sensor == sensor)
+                q = radar.z[rows]
+                p = mean[:, pos]
+                var = np.einsum("nii->n", cov[:, pos][:, :, pos]) / 2
+                seen, reason = self._fields.in_view(int(sensor), q, p, var)
+                if seen is not None and seen.size < 2:
+                    seen, reason = None, "fewer than two vehicles in view (eq. 18 is then 0)"
+                if seen is not None:
+                    T = float(topology(q))
+                    radar_var = float(np.einsum("mii->m", radar.cov[rows]).mean() / 2)
+                    if self._topology_gate(p[seen], var[seen], T, radar_var) > self._gate_1:
+                        seen, reason = None, "its topology lies outside the gate of the beliefs"
+                if seen is None:
+                    info["radar_skipped"][int(sensor)] = reason
+                    continue
+                model = self._group_model(p[seen], y_radar=T, radar_var=radar_var)
+                try:
+                    # T corrects the means; the covariances stay as predicted (module docstring)
+                    mean[seen], _ = self._update_group(mean[seen], cov[seen], model)
+                except EstimatorError as exc:
+                    info["radar_skipped"][int(sensor)] = str(exc)
+                    continue
+                info["radars_used"] += 1
+            if info["radar_skipped"]:
+                info["skipped"].append("radar")
+        self._base.vehicles.beliefs = Gaussians(mean, cov)
+        self.ids = ids
+        info["set_valued"] = self._anonymous
+        info["nis"] = base.info.get("nis", (0.0, 0))
+        return Estimate(checked_states(self.name, "vehicle", ids, mean, cov), None, info)
 
     def _estimate(self, info: dict[str, Any]) -> Estimate:
         mean, cov = self._moments()

@@ -59,6 +59,14 @@ Other choices the paper leaves open
   `marginal_moments`); a floor of 1e-9 on each block's covariance keeps it positive
   definite when the particles collapse.
 
+In traffic (per-radar mode, `filter_base`): a particle cloud over the joint state of a
+city (120 and more dimensions) cannot be kept, so the vehicles are per-vehicle Gaussians
+and each group's pseudo-measurement (a radar's eq. 18, a GPS group's eq. 17) is applied
+by a Gaussian particle filter (Kotecha & Djurić 2003, `_update_group`): `n_particles`
+joint draws of the group from the linearized proposal above (one parent, the group's
+Gaussian), weighted by the exact pseudo-likelihood over the linearized one, and
+moment-matched back to the blocks.
+
 `Estimate.info` adds ``ess`` (after the update, before any resampling), ``resampled``,
 ``stages`` (likelihood stages this step: tempering stages of the bootstrap proposal, 1
 for the linearized one), ``acceptance`` (of the moves) and ``degenerate`` (every
@@ -79,6 +87,7 @@ from typing import Any, ClassVar, Literal
 
 import numpy as np
 
+from cooploc.errors import EstimatorError
 from cooploc.estimators.sme.filter_base import _SmeFilter, _SmeParams
 from cooploc.estimators.sme.proposal import LinearizedProposal, linearized_proposal
 from cooploc.estimators.sme.pseudo_measurement import PseudoMeasurement
@@ -409,7 +418,33 @@ class SmePF(_SmeFilter):
             accepted += int(accept.sum())
         return accepted / (self.params.n_moves * log_ratio.size)
 
+    def _update_group(self, mean: FloatArray, cov: FloatArray, model: PseudoMeasurement
+                      ) -> tuple[FloatArray, FloatArray]:
+        """Per-radar mode: one group's independent Gaussian blocks updated by importance
+        sampling (a Gaussian particle filter, Kotecha & Djurić 2003): `n_particles` joint
+        draws of the group from the linearized proposal, weighted by the exact
+        pseudo-likelihood over the linearized one, moment-matched back to the blocks."""
+        P = self.params.n_particles
+        prior = np.broadcast_to(mean, (P, *mean.shape))
+        try:
+            proposal = linearized_proposal(prior, cov, np.zeros(P), model, self.pos,
+                                           self.params.linearization_iterations)
+            x = proposal.draw(proposal.mean, self.rng)
+            log_w = self._log_ratio(model, proposal, x)
+        except np.linalg.LinAlgError:
+            # no positive definite linearization: draw from the prior, weigh by p(y | x)
+            L = np.linalg.cholesky(cov)
+            x = prior + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(prior.shape))
+            log_w = model.log_likelihood(x[:, :, self.pos])
+        if not np.isfinite(log_w).any():   # the caller skips the group and says why
+            raise EstimatorError(self.name, f"every one of the {P} particles of a group of {mean.shape[0]} "
+                                 "vehicles has a vanishing pseudo-likelihood")
+        m, c = marginal_moments(x, np.where(np.isfinite(log_w), log_w, -np.inf))
+        return m, c + 1e-9 * np.eye(self.dx)
+
     def step(self, frame: Frame) -> Estimate:
+        if self.per_radar:
+            return self._step_per_radar(frame)
         if self.params.proposal == "linearized":
             return self._step_linearized(frame)
         parents = None  # x_{k−1} of each particle, for the move kernel

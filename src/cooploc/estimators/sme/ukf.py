@@ -27,6 +27,12 @@ Cholesky factor for the sigma points, or S is singular (the sums of powers lose 
 precision when the belief is far from the rows), the filter raises `EstimatorError`
 saying which.
 
+In traffic (per-radar mode, `filter_base`) the same unscented update is applied per
+group (`_update_group`): a radar's eq. (18) over the vehicles it sees, or a gate group's
+eq. (17), on the group's independent Gaussian blocks. A singular innovation covariance
+there skips that group instead of failing the run: a radar with the reason in
+``info["radar_skipped"]``, a GPS group counted in ``info["gnss_groups_skipped"]``.
+
 Complexity per step: O((dx N)³) for the joint covariance and O(dx N · N⁴) for the
 complex moments at the 2 dx N + 1 sigma points.
 """
@@ -34,13 +40,14 @@ complex moments at the 2 dx N + 1 sigma points.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from cooploc.errors import EstimatorError
 from cooploc.estimators.sme.filter_base import _SmeFilter, _SmeParams
-from cooploc.gaussian import nis, symmetrize
+from cooploc.estimators.sme.pseudo_measurement import PseudoMeasurement
+from cooploc.gaussian import block_diagonal, nis, symmetrize
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
 from cooploc.types import Estimate, FloatArray, Frame, Setup, StateSet
@@ -107,27 +114,66 @@ class SmeUKF(_SmeFilter):
         cols = (order[:, None] * dx + np.arange(dx)).ravel()
         self.ids, self.mean, self.cov = ids[order], mean[order], cov[np.ix_(cols, cols)]
 
-    def _sigma_points(self) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """(2d + 1, N, dx) points and mean/covariance weights of the scaled UT."""
+    def _sigma_points(self, mean: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(2d + 1, N, dx) points and mean/covariance weights of the scaled UT of N(mean, cov)."""
         p = self.params
-        d = self.cov.shape[0]
+        d = cov.shape[0]
         lam = p.alpha**2 * (d + p.kappa) - d
         try:
-            L = np.linalg.cholesky(symmetrize(self.cov) * (d + lam) + 1e-12 * np.eye(d))
+            L = np.linalg.cholesky(symmetrize(cov) * (d + lam) + 1e-12 * np.eye(d))
         except np.linalg.LinAlgError:
-            eig = np.linalg.eigvalsh(symmetrize(self.cov))
+            eig = np.linalg.eigvalsh(symmetrize(cov))
             raise EstimatorError(self.name, "the joint covariance has no Cholesky factor for the sigma "
                                  f"points (eigenvalues {eig[0]:.3g} … {eig[-1]:.3g}: too ill-conditioned "
                                  "for float64)") from None
-        x = self.mean.ravel()
+        x = mean.ravel()
         points = np.concatenate([x[None], x + L.T, x - L.T])
         w_m = np.full(2 * d + 1, 0.5 / (d + lam))
         w_c = w_m.copy()
         w_m[0] = lam / (d + lam)
         w_c[0] = w_m[0] + 1 - p.alpha**2 + p.beta
-        return points.reshape(2 * d + 1, *self.mean.shape), w_m, w_c
+        return points.reshape(2 * d + 1, *mean.shape), w_m, w_c
+
+    def _unscented_update(self, mean: FloatArray, cov: FloatArray, model: PseudoMeasurement,
+                          info: dict[str, Any]) -> tuple[FloatArray, FloatArray]:
+        """The UKF update of N(mean (N, dx), cov (N dx, N dx)) with `model` (module docstring)."""
+        points, w_m, w_c = self._sigma_points(mean, cov)
+        y, Y, R = model.predict(points[:, :, self.pos])
+        y_hat = w_m @ Y                                                  # ȳ = Σ W_m Y
+        dY = Y - y_hat
+        dX = points.reshape(points.shape[0], -1) - mean.ravel()
+        S = symmetrize(np.einsum("s,si,sj->ij", w_c, dY, dY) + np.einsum("s,sij->ij", w_m, R))
+        C = np.einsum("s,si,sj->ij", w_c, dX, dY)                        # cross-covariance
+        # singular in float64 when its spectrum spans more than 1/ε: tested on the spectrum,
+        # since whether `solve` meets an exact zero pivot there depends on the LAPACK build
+        lam = np.linalg.eigvalsh(S) if np.isfinite(S).all() else np.full(1, np.nan)
+        if not np.isfinite(lam).all() or lam[0] <= lam[-1] * S.shape[0] * np.finfo(float).eps:
+            raise EstimatorError(self.name, "the innovation covariance of the pseudo-measurement "
+                                 "(eq. 19) is singular: the sigma points' sums of powers lost all "
+                                 "precision (a belief far from the rows, or covariances too far apart "
+                                 "for float64)")
+        K = np.linalg.solve(S, C.T).T                                    # K = C S⁻¹
+        mean = (mean.ravel() + K @ (y - y_hat)).reshape(mean.shape)
+        nis_sum, dof = info.get("nis", (0.0, 0))
+        info["nis"] = (nis_sum + float(nis(y - y_hat, S)), dof + int(y.size))
+        cov = symmetrize(cov - K @ S @ K.T)
+        eig_min = np.linalg.eigvalsh(cov).min()
+        if eig_min <= 1e-9:  # the UT lost positive definiteness: lift the spectrum
+            cov = cov + (1e-9 - eig_min) * np.eye(cov.shape[0])
+            info["covariance_repaired"] = True
+        return mean, cov
+
+    def _update_group(self, mean: FloatArray, cov: FloatArray, model: PseudoMeasurement
+                      ) -> tuple[FloatArray, FloatArray]:
+        """Per-radar mode: the UKF update of one group's independent blocks; their marginals."""
+        n, dx = mean.shape
+        mean, joint = self._unscented_update(mean, block_diagonal(cov), model, {})
+        blocks = joint.reshape(n, dx, n, dx)[np.arange(n), :, np.arange(n), :]
+        return mean, symmetrize(blocks)
 
     def step(self, frame: Frame) -> Estimate:
+        if self.per_radar:
+            return self._step_per_radar(frame)
         n = self.ids.size
         if n and self._started:
             # predict every block: m = A m, P = A P Aᵀ + Q (block diagonal)
@@ -143,27 +189,5 @@ class SmeUKF(_SmeFilter):
         model, info = self._pseudo_measurement(frame, mean, cov)
         info["nis"] = (0.0, 0)
         if model.y_gnss is not None or model.y_radar is not None:
-            points, w_m, w_c = self._sigma_points()
-            y, Y, R = model.predict(points[:, :, self.pos])
-            y_hat = w_m @ Y                                                  # ȳ = Σ W_m Y
-            dY = Y - y_hat
-            dX = points.reshape(points.shape[0], -1) - self.mean.ravel()
-            S = symmetrize(np.einsum("s,si,sj->ij", w_c, dY, dY) + np.einsum("s,sij->ij", w_m, R))
-            C = np.einsum("s,si,sj->ij", w_c, dX, dY)                        # cross-covariance
-            # singular in float64 when its spectrum spans more than 1/ε: tested on the spectrum,
-            # since whether `solve` meets an exact zero pivot there depends on the LAPACK build
-            lam = np.linalg.eigvalsh(S) if np.isfinite(S).all() else np.full(1, np.nan)
-            if not np.isfinite(lam).all() or lam[0] <= lam[-1] * S.shape[0] * np.finfo(float).eps:
-                raise EstimatorError(self.name, "the innovation covariance of the pseudo-measurement "
-                                     "(eq. 19) is singular: the sigma points' sums of powers lost all "
-                                     "precision (a belief far from the rows, or covariances too far apart "
-                                     "for float64)")
-            K = np.linalg.solve(S, C.T).T                                    # K = C S⁻¹
-            self.mean = (self.mean.ravel() + K @ (y - y_hat)).reshape(self.mean.shape)
-            info["nis"] = (float(nis(y - y_hat, S)), int(y.size))
-            self.cov = symmetrize(self.cov - K @ S @ K.T)
-            eig_min = np.linalg.eigvalsh(self.cov).min()
-            if eig_min <= 1e-9:  # the UT lost positive definiteness: lift the spectrum
-                self.cov = self.cov + (1e-9 - eig_min) * np.eye(self.cov.shape[0])
-                info["covariance_repaired"] = True
+            self.mean, self.cov = self._unscented_update(self.mean, self.cov, model, info)
         return self._estimate(info)
