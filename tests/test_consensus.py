@@ -191,6 +191,23 @@ def test_flood_counts_each_forward_once() -> None:
     assert net.counters() == {"messages": 4, "bytes": 4 * 4 * 8}
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_flood_of_sizes_only_knows_and_counts_what_the_copies_would(seed: int) -> None:
+    # payload given as the numbers per block: the same holders and the same traffic as
+    # carrying an (n, G, 6) array, and no copies returned
+    rng = np.random.default_rng(seed)
+    n, G = 9, 5
+    edges = _random_connected(rng, n, 6)
+    have = rng.random((n, G)) < 0.2
+    priority = rng.integers(0, 4, (n, G))
+    carrying, counting = Network(np.arange(n), edges), Network(np.arange(n), edges)
+    got, data, _ = flood(carrying, have, rng.normal(size=(n, G, 6)), 3, priority)
+    known, nothing, _ = flood(counting, have, 6, 3, priority)
+    np.testing.assert_array_equal(known, got)
+    assert nothing is None and data.shape == (n, G, 6)
+    assert counting.counters() == carrying.counters() and carrying.counters()["messages"] > 0
+
+
 def test_flood_sends_only_to_agents_that_accept() -> None:
     net = Network(np.arange(3), _path(3))                  # 0-1-2
     have = np.array([[True], [False], [False]])

@@ -244,13 +244,17 @@ def network_sum(network: Network, values: npt.ArrayLike, n_iterations: int,
     return GroupConsensus(network, members, n_iterations).sum(values)
 
 
-def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
-          priority: npt.ArrayLike, accept: _Mask | None = None) -> tuple[_Mask, np.ndarray, np.ndarray]:
+def flood(network: Network, have: _Mask, payload: np.ndarray | int, n_rounds: int,
+          priority: npt.ArrayLike, accept: _Mask | None = None
+          ) -> tuple[_Mask, np.ndarray | None, np.ndarray]:
     """Spread blocks to the agents that lack them (module doc).
 
     Parameters
     ----------
-    have : (n, G) which agents hold block g; payload : (n, G, ...) their copies.
+    have : (n, G) which agents hold block g.
+    payload : (n, G, ...) their copies; or an int, the numbers a block carries, where the
+        caller needs only who holds what (the messages and bytes are counted alike, and
+        no (n, G, ...) array is kept).
     n_rounds : forwarding rounds (blocks travel at most this many hops).
     priority : (n, G) integers ranking the copies; higher wins where copies meet.
     accept : (n,) the agents that take copies (None: all); nothing is sent to the others.
@@ -258,11 +262,12 @@ def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
     Returns
     -------
     have, payload, priority
-        after flooding.
+        after flooding (payload None where it was an int).
     """
     _check_iterations(n_rounds)
     have = np.array(have, dtype=bool, copy=True)
-    payload = np.array(payload, copy=True)
+    carried = not isinstance(payload, (int, np.integer))
+    payload = np.array(payload, copy=True) if carried else int(payload)
     priority = np.array(np.broadcast_to(priority, have.shape), dtype=np.int64, copy=True)
     fresh = have.copy()                                         # blocks to forward this round
     into = (np.ones(network.n_edges, dtype=bool) if accept is None
@@ -283,15 +288,17 @@ def flood(network: Network, have: _Mask, payload: np.ndarray, n_rounds: int,
         pick = order[first]
         # every pair is delivered and counted; only the kept copies are read
         # (edges come sorted: the distinct ones are counted without a sort)
-        received = network.exchange_blocks(payload, edges, blocks, int(np.count_nonzero(np.diff(edges))) + 1,
-                                           read=pick)
+        n_messages = int(np.count_nonzero(np.diff(edges))) + 1
         fresh = np.zeros_like(have)
         t, b = target[pick], blocks[pick]
+        if carried:
+            payload[t, b] = network.exchange_blocks(payload, edges, blocks, n_messages, read=pick)
+        else:
+            network.count(n_messages, edges.size * payload)
         have[t, b] = True
         fresh[t, b] = True
-        payload[t, b] = received
         priority[t, b] = rank[pick]
-    return have, payload, priority
+    return have, (payload if carried else None), priority
 
 
 def _fresh_pairs(fresh: _Mask, source: IntArray, into: _Mask) -> tuple[IntArray, IntArray]:

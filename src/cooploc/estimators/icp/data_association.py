@@ -264,9 +264,9 @@ class ICPDALC(ICP):
         n = network.n_agents
         have = np.zeros((n, C), dtype=bool)
         have[ai, np.arange(C)] = True
-        payload = np.zeros((n, C, self.d + self.d * self.d))
-        payload[ai, np.arange(C)] = np.concatenate([g, P.reshape(C, -1)], axis=1)
-        have, _, _ = flood(network, have, payload, self.params.share_hops,
+        # each block is a candidate's (g, P); only who knows which is used here, so the
+        # flood counts their numbers without keeping (n, C) copies
+        have, _, _ = flood(network, have, self.d + self.d * self.d, self.params.share_hops,
                            np.broadcast_to(network.agents[:, None], (n, C)))
         out = _names_known(have, ai, ids, agent_ids, g, P, self._position)
         # ids grow with (agent, row), the order of the candidates: a name is found by search
