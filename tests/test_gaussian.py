@@ -24,6 +24,7 @@ from cooploc.gaussian import (
     kf_predict,
     kf_update,
     kf_update_nis,
+    kf_update_relative,
     nis,
     symmetrize,
     to_information,
@@ -338,3 +339,35 @@ def test_nis_survives_the_square_root_fallback() -> None:
     assert np.array_equal(post.mean, kf_update(prior, np.array([[1.0, 3.0]]), H, 1e-20 * np.eye(2)).mean)
     # QR of a pre-array spanning 10 orders of magnitude: ~1e-16 × 1e10 relative
     np.testing.assert_allclose(values, [2e20], rtol=1e-6)
+
+
+# ----------------------------------------------------------------------------
+# rows relating two states (stochastic cloning)
+# ----------------------------------------------------------------------------
+
+@pytest.mark.parametrize("case", range(4))
+def test_relative_update_is_the_conditional_of_the_joint(rng: np.random.Generator, case: int) -> None:
+    # x_{k−1} ~ N(m, P), x_k = F x_{k−1} + q, z = H x_k − H x_{k−1} + w: the posterior of
+    # x_k is the Gaussian conditional of (x_k, z), built here from their joint moments
+    # without any clone, and the likelihood is scipy's density of z
+    p = random_problem(rng)
+    n, dx = p["mean"].shape
+    dz = p["H"].shape[0]
+    F, Q, H, P, m = p["F"], p["Q"], p["H"], p["cov"], p["mean"]
+    previous = Gaussians(m, P)
+    predicted = kf_predict(previous, F, Q)
+    post, nis_of, log_q = kf_update_relative(previous, predicted, F, p["z"], H, p["Rn"])
+    for i in range(n):
+        C_xx = F @ P[i] @ F.T + Q
+        D = (F - np.eye(dx)) @ P[i] @ (F - np.eye(dx)).T + Q              # Cov(x_k − x_{k−1})
+        C_xz = C_xx @ H.T - F @ P[i] @ H.T
+        C_zz = H @ D @ H.T + p["Rn"][i]
+        mz = H @ (F - np.eye(dx)) @ m[i]
+        r = p["z"][i] - mz
+        gain = np.linalg.solve(C_zz, C_xz.T).T
+        np.testing.assert_allclose(post.mean[i], F @ m[i] + gain @ r, rtol=REFERENCE_RTOL, atol=1e-10)
+        np.testing.assert_allclose(post.cov[i], C_xx - gain @ C_xz.T, rtol=REFERENCE_RTOL, atol=1e-10)
+        np.testing.assert_allclose(nis_of[i], r @ np.linalg.solve(C_zz, r), rtol=REFERENCE_RTOL)
+        want = multivariate_normal(mz, C_zz).logpdf(p["z"][i])
+        np.testing.assert_allclose(log_q[i], want, rtol=0, atol=LOGPDF_ATOL)
+    assert post.mean.shape == (n, dx) and nis_of.shape == log_q.shape == (n,) and dz >= 1

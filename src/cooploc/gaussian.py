@@ -28,6 +28,13 @@ Li & Kirubarajan 2001, §5.4). `kf_update_nis` returns it beside the update (fro
 Joseph form's ν and S, or as |S^−½ ν|² from the square-root form), computed only there:
 `kf_update` costs nothing more for it, and the estimate is the same bit for bit.
 
+Rows relating two states (odometry, z = H x_k − H x_{k−1} + w; Gulati 2017 eq. 20) are
+fused exactly by stochastic cloning (Roumeliotis & Burdick 2002), `kf_update_relative`:
+the predicted joint of [x_k; x_{k−1}] has mean [F m; m] and covariance
+[[F P Fᵀ + Q, F P], [P Fᵀ, P]]; it is updated with H_aug = [H, −H] and x_{k−1} is
+marginalised out. Its predictive log-likelihood log N(z; H_aug m_aug, S) weighs mixture
+components (`gm-phd`).
+
 Information form: Λ = P⁻¹, η = P⁻¹ m. A measurement z = H x + w, w ~ N(0, R) adds
 Hᵀ R⁻¹ H to Λ and Hᵀ R⁻¹ z to η — the product of Gaussian messages is a sum, which is
 why Gaussian belief propagation works in this form.
@@ -69,6 +76,7 @@ __all__ = [
     "kf_predict",
     "kf_update",
     "kf_update_nis",
+    "kf_update_relative",
     "kf_update_square_root",
     "nis",
     "sigma_points",
@@ -153,6 +161,26 @@ def kf_update_nis(prior: Gaussians, z: FloatArray, H: FloatArray, R: FloatArray
     """
     post, nis_of = _kf_update(prior, z, H, R)
     return post, nis_of()
+
+
+def kf_update_relative(previous: Gaussians, predicted: Gaussians, F: FloatArray, z: FloatArray,
+                       H: FloatArray, R: FloatArray) -> tuple[Gaussians, FloatArray, FloatArray]:
+    """Update with rows z = H x_k − H x_{k−1} + w by stochastic cloning (module docstring).
+
+    previous : the beliefs of x_{k−1} (n, dx); predicted : of x_k, F·previous plus noise
+    (n, dx); F : (dx, dx); z : (n, dz); H : (dz, dx); R : (n, dz, dz). Returns the
+    posterior of x_k (Joseph form, as `kf_update`), each row's NIS (n,) and its predictive
+    log-likelihood log N(z; H m_k − H m_{k−1}, S) (n,).
+    """
+    FP = F @ previous.cov                                                 # Cov(x_k, x_{k−1})
+    joint = Gaussians(np.concatenate([predicted.mean, previous.mean], axis=-1),
+                      np.block([[predicted.cov, FP], [np.swapaxes(FP, -1, -2), previous.cov]]))
+    H_aug = np.concatenate([H, -H], axis=-1)                              # z = H x_k − H x_{k−1}
+    posterior, nis_of = kf_update_nis(joint, z, H_aug, R)
+    S = symmetrize(H_aug @ joint.cov @ H_aug.T + R)
+    log_likelihood = -0.5 * (z.shape[-1] * _LOG_2PI + np.linalg.slogdet(S)[1] + nis_of)
+    dx = predicted.mean.shape[-1]
+    return Gaussians(posterior.mean[:, :dx], posterior.cov[:, :dx, :dx]), nis_of, log_likelihood
 
 
 def squared_mahalanobis(residual: FloatArray, cov: FloatArray) -> FloatArray:

@@ -19,7 +19,10 @@ weight 1 − p_D and is pruned. Where the GNSS rows name their vehicle (`use_ide
 each vehicle has its own PHD: components carry its id as a label, a row updates only its
 vehicle's components, merging never joins two labels, and each vehicle's estimate is its
 heaviest component (not set-valued). Anonymous rows (Zhang's) leave every label at −1:
-the plain GM-PHD, unchanged.
+the plain GM-PHD, unchanged. Odometry (identified by construction) is fused into its
+vehicle's components by stochastic cloning before the GNSS update, as `gnss-kf` does
+(`gaussian.kf_update_relative`), their weights renormalised within the label by the row's
+likelihood; with anonymous rows (no labels) it is left aside.
 
 The update written out, the extraction rule, births, labels, and the choices the paper
 leaves open (p_D cap, p_S, κ = 0 without clutter): docs/gm_phd.md. Stone Soup's GM-PHD is
@@ -37,7 +40,7 @@ import numpy as np
 from cooploc.association import unexplained_rows
 from cooploc.errors import EstimatorError
 from cooploc.estimators.base import checked_states, default_birth_cov, predict_steps
-from cooploc.gaussian import Gaussians, symmetrize
+from cooploc.gaussian import Gaussians, kf_update_relative, symmetrize
 from cooploc.params import Params, param
 from cooploc.particles import log_sum_exp
 from cooploc.registry import register_estimator
@@ -236,8 +239,8 @@ class GMPHDParams(Params):
 class GMPHD:
     """Gaussian-mixture PHD filter of the anonymous GPS rows (Vo & Ma 2006).
 
-    Uses: GNSS rows, anonymous or identified (one PHD per vehicle, `use_identities`);
-    not the radar, not odometry.
+    Uses: GNSS rows, anonymous or identified (one PHD per vehicle, `use_identities`), and
+    odometry where they are identified (with anonymous rows it is left aside); not the radar.
     """
 
     name: ClassVar[str] = "gm-phd"
@@ -246,7 +249,7 @@ class GMPHD:
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "zhang2016-cv"
     usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
-        "gnss": ("anonymous-position", "gnss-position")}
+        "gnss": ("anonymous-position", "gnss-position"), "odometry": ("odometry",)}
 
     def __init__(self, setup: Setup, params: GMPHDParams, rng: np.random.Generator) -> None:
         self.setup = setup
@@ -267,9 +270,46 @@ class GMPHD:
             area = float(np.prod(np.diff(setup.clutter_region, axis=1)))
             self.kappa = setup.clutter_rate / area
         self.labelled = params.use_identities and getattr(sensor, "name", "") == "gnss-position"
+        odometry = setup.sensors.get("odometry")
+        self.H_odo = None if odometry is None else odometry.observation_matrix(dx)
         self.mixture: Mixture | None = None
         self._last_rows: tuple[FloatArray, FloatArray] | None = None
         self._present: IntArray = np.zeros(0, dtype=np.int64)   # the vehicles of the last step
+
+    def _update_odometry(self, frame: Frame, previous: Mixture, predicted: Mixture) -> Mixture:
+        """Each vehicle's odometry row, fused into the components of its label (docs/gm_phd.md).
+
+        As `gnss-kf` does it: only for a vehicle connected at k − 1 and k with exactly one
+        row, each component by stochastic cloning from the component it was predicted from
+        (`gaussian.kf_update_relative`). The row is that vehicle's for sure, so it moves the
+        vehicle's PHD mass between its components and never changes the total:
+        w_j ← W w_j q_j / Σ_l w_l q_l over the components l of the label, W = Σ_l w_l.
+        """
+        odometry = frame.batches.get("odometry")
+        if not self.labelled or self.H_odo is None or odometry is None or not len(odometry):
+            return predicted
+        subjects, counts = np.unique(odometry.subject, return_counts=True)
+        once = counts == 1
+        moving = subjects[once & np.isin(subjects, self._present) & np.isin(subjects, frame.vehicles)]
+        comp = np.flatnonzero(np.isin(predicted.labels, moving))
+        if comp.size == 0:
+            return predicted
+        comp = comp[np.argsort(predicted.labels[comp], kind="stable")]      # grouped by label
+        label = predicted.labels[comp]
+        order = np.argsort(odometry.subject, kind="stable")
+        row = order[np.searchsorted(odometry.subject[order], label)]
+        updated, _, log_q = kf_update_relative(Gaussians(previous.mean[comp], previous.cov[comp]),
+                                               Gaussians(predicted.mean[comp], predicted.cov[comp]), self.F,
+                                               odometry.z[row], self.H_odo, odometry.cov[row])
+        starts = np.r_[0, np.flatnonzero(np.diff(label)) + 1]
+        of = np.repeat(np.arange(starts.size), np.diff(np.r_[starts, label.size]))
+        log_w = predicted.log_w[comp]
+        log_total = np.logaddexp.reduceat(log_w, starts)                      # log W per label
+        log_norm = np.logaddexp.reduceat(log_w + log_q, starts)               # log Σ_l w_l q_l
+        out = Mixture(predicted.log_w.copy(), predicted.mean.copy(), predicted.cov.copy(), predicted.label)
+        out.log_w[comp] = log_w + log_q - log_norm[of] + log_total[of]
+        out.mean[comp], out.cov[comp] = updated.mean, updated.cov
+        return out
 
     def _initial(self, frame: Frame) -> Mixture:
         prior = self.setup.vehicle_prior
@@ -344,6 +384,7 @@ class GMPHD:
             # prediction, Table I step 2: w ← p_S w, m ← F m, P ← F P Fᵀ + Q, plus births
             survived = Mixture(m.log_w + np.log(p.survival_probability), m.mean @ self.F.T,
                                symmetrize(self.F @ m.cov @ self.F.T + self.Q), m.label)
+            survived = self._update_odometry(frame, m, survived)
             mixture = Mixture.concatenate([survived, self._births()])
         born, taken = self._entry_births(frame, mixture, z, R, subject)
         self._present = np.array(frame.vehicles, dtype=np.int64)

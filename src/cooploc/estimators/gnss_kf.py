@@ -13,9 +13,8 @@ vehicle with no fix this step is only predicted.
 
 Odometry (where the scenario has an ``odometry`` sensor and batch, e.g. Gulati §IV-A,
 the Kalman baseline of eq. 20): the row z_k = H x_k − H x_{k−1} + w relates two
-states, so it is fused exactly by stochastic cloning — the predicted joint of
-[x_k; x_{k−1}] has mean [F m; m] and covariance [[F P Fᵀ + Q, F P], [P Fᵀ, P]]; it is
-updated with H_aug = [H, −H] (Joseph form) and x_{k−1} is marginalised out. This runs
+states, so it is fused exactly by stochastic cloning (`gaussian.kf_update_relative`:
+the joint of [x_k; x_{k−1}] updated with H_aug = [H, −H], x_{k−1} marginalised out). This runs
 before the GNSS update, only for vehicles with exactly one odometry row that were
 also present at k − 1. Scenarios without odometry are filtered exactly as before.
 
@@ -37,7 +36,7 @@ from typing import ClassVar
 import numpy as np
 
 from cooploc.estimators.base import VehicleBeliefs, checked_states
-from cooploc.gaussian import Gaussians, kf_predict, kf_update_nis
+from cooploc.gaussian import Gaussians, kf_predict, kf_update_nis, kf_update_relative
 from cooploc.params import Params
 from cooploc.registry import register_estimator
 from cooploc.types import Batch, Estimate, Frame, Setup
@@ -129,17 +128,11 @@ class GnssKF:
         rows, target = rows[keep], target[keep]
         if rows.size == 0:
             return beliefs
-        dx = beliefs.mean.shape[1]
-        F = self._F
-        m_prev, P_prev = previous.mean[target], previous.cov[target]
-        FP = F @ P_prev                                                # Cov(x_k, x_{k−1})
-        joint = Gaussians(
-            np.concatenate([beliefs.mean[target], m_prev], axis=1),
-            np.block([[beliefs.cov[target], FP], [np.swapaxes(FP, -1, -2), P_prev]]))
-        H_aug = np.concatenate([self._H_odo, -self._H_odo], axis=1)    # z = H x_k − H x_{k−1}
-        updated = self._update_nis(joint, odometry.z[rows], H_aug, odometry.cov[rows])
+        updated, nis, _ = kf_update_relative(previous.take(target), beliefs.take(target), self._F,
+                                             odometry.z[rows], self._H_odo, odometry.cov[rows])
+        self._nis = (self._nis[0] + float(nis.sum()), self._nis[1] + odometry.z[rows].size)
         mean, cov = beliefs.mean.copy(), beliefs.cov.copy()
-        mean[target], cov[target] = updated.mean[:, :dx], updated.cov[:, :dx, :dx]
+        mean[target], cov[target] = updated.mean, updated.cov
         return Gaussians(mean, cov)
 
     def _update(self, beliefs: Gaussians, gnss: Batch) -> Gaussians:
