@@ -48,7 +48,7 @@ def test_writes_the_tables_the_heat_map_and_a_results_folder_per_scenario(compar
         assert list(t["estimators"]) == NAMES and t["bound"] == "oracle-kf"
     text = (compared / "compare.md").read_text()
     assert "## froehle2018" in text and "## brambilla-road" in text
-    assert text.count("| `gnss-kf` |") == 3  # the overview and the two scenario tables
+    assert text.count("| `gnss-kf` |") == 4  # the two overviews and the two scenario tables
     assert "| `icp` | n/a |" in text and "| *bound* | oracle-kf | oracle-kf |" in text
 
 
@@ -81,6 +81,18 @@ def test_ratios_and_interval_come_from_the_scenario_summaries(compared):
     per_run = np.array(list(summary["estimators"]["icp"]["per_run_vehicle_rmse"].values()))
     assert per_run.min() <= low <= high <= per_run.max()  # pooled over resampled runs
     assert f"| `icp` | {icp:.2f} |" in (compared / "compare.md").read_text()
+
+
+def test_each_method_is_also_measured_against_the_bound_of_its_own_sensors(compared):
+    road = _strict((compared / "compare.json").read_text())["scenarios"][1]["estimators"]
+    assert road["icp"]["own_bound"] == "oracle-kf"                      # GNSS + V2F
+    assert road["icp"]["ratio_own_bound"] == pytest.approx(road["icp"]["ratio_bound"])
+    # gnss-kf's own bound, kf-known-da (GNSS alone), was not compared: no number, the reason
+    assert road["gnss-kf"]["own_bound"] == "kf-known-da" and road["gnss-kf"]["ratio_own_bound"] is None
+    assert "kf-known-da was not among the estimators compared" in road["gnss-kf"]["own_bound_note"]
+    text = (compared / "compare.md").read_text()
+    assert f"({road['icp']['ratio_own_bound']:.2f}× oracle-kf)" in text
+    assert "| `gnss-kf` | kf-known-da |" not in text and "no own-bound ratio: kf-known-da" in text
 
 
 def test_numbers_equal_those_of_cooploc_run(compared, tmp_path):

@@ -11,7 +11,8 @@ at the top:
 
 - ``compare.json`` (strict JSON) and ``compare.md``: one table per scenario — pooled
   vehicle RMSE (``vehicle_rmse_all``), its 90 % interval over runs, its ratio to
-  ``gnss-kf`` and to the scenario's bound (`Preset.bound`), association accuracy
+  ``gnss-kf``, to the scenario's bound (`Preset.bound`) and to the bound of the
+  method's own sensors (the estimator's `bound`, `cooploc.registry`), association accuracy
   (per step as Brambilla 2020 measures it, and per track over the run:
   `cooploc.metrics`), steps per second, failed runs and the measurement kinds left
   unused;
@@ -42,8 +43,8 @@ from cooploc.experiment import run_generators, run_recording
 from cooploc.registry import construct, estimators, get_estimator, get_preset, presets
 from cooploc.types import Recording
 
-__all__ = ["BOOTSTRAP", "ScenarioPlan", "default_presets", "plan", "run_compare", "tables",
-           "write_compare"]
+__all__ = ["BOOTSTRAP", "ScenarioPlan", "default_presets", "own_bounds_overview", "plan", "run_compare",
+           "tables", "write_compare"]
 
 BOOTSTRAP = 2000  # resamples of the 90 % interval
 REFERENCE = "gnss-kf"  # the second ratio: how much cooperation gains over GNSS alone
@@ -191,12 +192,18 @@ def scenario_table(p: ScenarioPlan, folder: Path) -> dict[str, Any]:
         }
     notes = {"gnss_kf": _why_no_ratio(REFERENCE, rows, "GNSS reference"),
              "bound": _why_no_ratio(p.bound, rows, "bound")}
-    for row in rows.values():
+    for name, row in rows.items():
         if "refused" not in row:
             row["ratio_gnss_kf"] = None if notes["gnss_kf"] else _ratio(row["vehicle_rmse"],
                                                                           rows[REFERENCE]["vehicle_rmse"])
             row["ratio_bound"] = None if notes["bound"] else _ratio(row["vehicle_rmse"],
                                                                       rows[p.bound]["vehicle_rmse"])
+            own = getattr(get_estimator(name), "bound", None)
+            why = _why_no_ratio(own, rows, f"known-association bound for the sensors of {name}")
+            row["own_bound"] = own
+            row["ratio_own_bound"] = None if why else _ratio(row["vehicle_rmse"], rows[own]["vehicle_rmse"])
+            if why:
+                row["own_bound_note"] = why
     return {"scenario": p.preset, "bound": p.bound, "runs": None if summary is None else summary["runs"],
             "seed": None if summary is None else summary["seed"],
             "results": p.preset if summary is not None else None,
@@ -235,34 +242,63 @@ def overview(data: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def own_bounds_overview(data: Mapping[str, Any]) -> list[str]:
+    """The estimators × scenarios table of each method's ratio to the bound of its own
+    sensors (`registry`: an estimator's `bound`): RMSE (ratio × that bound)."""
+    scenarios = data["scenarios"]
+    names = list(dict.fromkeys(n for t in scenarios for n in t["estimators"]))
+    lines = ["| estimator | " + " | ".join(t["scenario"] for t in scenarios) + " |",
+             "| --- |" + " ---: |" * len(scenarios)]
+    for name in names:
+        cells = []
+        for t in scenarios:
+            row = t["estimators"].get(name)
+            if row is None or "refused" in row:
+                cells.append("" if row is None else "n/a")
+                continue
+            ratio = row.get("ratio_own_bound")
+            shown = "" if ratio is None else f" ({ratio:.2f}× {row['own_bound']})"
+            cells.append(_num(row["vehicle_rmse"], unit=" m") + (shown or " (no bound)"))
+        lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
+    return lines
+
+
 def markdown(data: Mapping[str, Any]) -> str:
     """compare.md: the overview, then one Markdown table per scenario."""
     lines = ["# cooploc compare", "",
              "Vehicle RMSE pooled over vehicles, steps and runs (ratio to the scenario's bound); n/a: the "
              "estimator cannot run there (the reason is in the scenario's table).", "",
              *overview(data), "",
+             "Each method against the known-association bound of its own sensors (an estimator's "
+             "`bound`: `oracle-kf` for GNSS + V2F, `oracle-pose` for GNSS + radar, "
+             "`oracle-pose-smoother` for the smoothed factor graphs, `kf-known-da` for GNSS alone): "
+             "RMSE (ratio × that bound); \"no bound\" where cooploc has none or it did not run.", "",
+             *own_bounds_overview(data), "",
              f"90 % interval: {data['interval_90']}. "
-             "Ratios are RMSE / RMSE of gnss-kf and of the scenario's bound; \"—\" where there is none "
-             "(the reason follows the table).", ""]
+             "Ratios are RMSE / RMSE of gnss-kf, of the scenario's bound and of the bound of the "
+             "method's own sensors; \"—\" where there is none (the reason follows the table).", ""]
     for t in data["scenarios"]:
         lines += [f"## {t['scenario']}", "",
                   f"{t['runs']} runs, seed {t['seed']}; bound: {t['bound'] or 'none'}; "
                   f"results in `{t['results']}/`" if t["results"] else "no estimator can run here", "",
                   "| estimator | vehicle RMSE [m] | 90 % interval [m] | / gnss-kf | / bound "
-                  "| association per step | per track | steps/s | notes |",
-                  "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |"]
+                  "| own bound | / own bound | association per step | per track | steps/s | notes |",
+                  "| --- | ---: | ---: | ---: | ---: | --- | ---: | ---: | ---: | ---: | --- |"]
         for name, row in t["estimators"].items():
             if "refused" in row:
-                lines.append(f"| `{name}` | not run | | | | | | | {row['refused']} |")
+                lines.append(f"| `{name}` | not run | | | | | | | | | {row['refused']} |")
                 continue
             interval = row["interval_90"]
             notes = [f"{row['failed_runs']} failed runs"] if row["failed_runs"] else []
             if row["unused_kinds"]:
                 notes.append("not using " + ", ".join(row["unused_kinds"]))
+            if "own_bound_note" in row and row["own_bound"] is not None:
+                notes.append(f"no own-bound ratio: {row['own_bound_note']}")
             lines.append(
                 f"| `{name}` | {_num(row['vehicle_rmse'])} | "
                 f"{'—' if interval is None else f'{interval[0]:.2f}–{interval[1]:.2f}'} | "
                 f"{_num(row['ratio_gnss_kf'])} | {_num(row['ratio_bound'])} | "
+                f"{row['own_bound'] or 'none'} | {_num(row['ratio_own_bound'])} | "
                 f"{_num(row['association_accuracy_per_step'], 3)} | {_num(row['association_accuracy'], 3)} | "
                 f"{_num(row['steps_per_second'], 0)} | "
                 f"{'; '.join(notes)} |")

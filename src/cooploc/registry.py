@@ -37,6 +37,14 @@ it an estimate), and `unused_kinds` names the kinds it accepts but leaves aside 
 run's summary and report say so). A class without `usable_sensors` (a plug-in written
 before it existed) is taken to use whatever it is given.
 
+The bound of an estimator's own sensors. `bound` (optional) names the registered
+known-association estimator that reads the same sensors — what the method could reach
+if it knew the association (``"oracle-kf"`` for GNSS + V2F, ``"oracle-pose"`` for GNSS
++ radar, ``"kf-known-da"`` for GNSS alone), or None where cooploc has none. `cooploc
+compare` gives each method's RMSE also as a ratio to it, beside the scenario's bound
+(`Preset.bound`), which reads the scenario's main sensors: on a city with every
+paper's sensors, a radar method is measured against what radar allows.
+
 A plug-in that fails to load is reported with a `PluginWarning` and left out, so that
 one broken package does not take `cooploc` down with it.
 """
@@ -167,6 +175,9 @@ def register_estimator(cls: E) -> E:
         raise ConfigError(f"{name}: Params must be a subclass of cooploc.params.Params, got {cls.Params!r}")
     if not isinstance(cls.needs_truth, bool):
         raise ConfigError(f"{name}: needs_truth must be True or False, got {cls.needs_truth!r}")
+    own_bound = getattr(cls, "bound", None)
+    if own_bound is not None and (not isinstance(own_bound, str) or not own_bound):
+        raise ConfigError(f"{name}: bound must be an estimator name or None, got {own_bound!r}")
     if not callable(cls.step):
         raise ConfigError(f"{name}: step must be a method step(frame) -> Estimate")
     held = _estimators.get(name)

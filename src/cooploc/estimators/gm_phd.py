@@ -244,6 +244,7 @@ class GMPHD:
     """
 
     name: ClassVar[str] = "gm-phd"
+    bound: ClassVar[str | None] = "kf-known-da"
     summary: ClassVar[str] = "Gaussian-mixture PHD filter (Vo & Ma 2006) of anonymous GPS rows"
     Params: ClassVar[type[Params]] = GMPHDParams
     needs_truth: ClassVar[bool] = False

@@ -59,6 +59,7 @@ class GnssKF:
     """
 
     name: ClassVar[str] = "gnss-kf"
+    bound: ClassVar[str | None] = "kf-known-da"
     summary: ClassVar[str] = "non-cooperative Kalman filter per vehicle from GNSS (+ odometry), baseline"
     Params: ClassVar[type[Params]] = GnssKFParams
     needs_truth: ClassVar[bool] = False

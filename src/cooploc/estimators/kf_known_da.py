@@ -46,6 +46,7 @@ class KFKnownDA:
     """
 
     name: ClassVar[str] = "kf-known-da"
+    bound: ClassVar[str | None] = "kf-known-da"
     summary: ClassVar[str] = ("Kalman filter per vehicle of anonymous GPS rows given their true "
                               "association, no radar (Zhang 2016 §4.1 baseline)")
     Params: ClassVar[type[Params]] = KFKnownDAParams

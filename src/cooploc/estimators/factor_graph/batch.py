@@ -170,6 +170,7 @@ class FgTopologyOld(_BatchGraph):
     """
 
     name: ClassVar[str] = "fg-topology-old"
+    bound: ClassVar[str | None] = "oracle-pose-smoother"
     Params: ClassVar[type[Params]] = FgTopologyOldParams
     summary: ClassVar[str] = "factor graph, GPS + odometry + old topology factor (eq. 8), batch LM"
     kind: ClassVar[str] = OLD
@@ -183,6 +184,7 @@ class FgTopologyNew(_BatchGraph):
     """
 
     name: ClassVar[str] = "fg-topology-new"
+    bound: ClassVar[str | None] = "oracle-pose-smoother"
     Params: ClassVar[type[Params]] = FgTopologyNewParams
     summary: ClassVar[str] = "factor graph, GPS + odometry + new topology factor (eqs. 9–16), batch LM"
     kind: ClassVar[str] = NEW

@@ -67,6 +67,7 @@ class FgIsam2:
     """
 
     name: ClassVar[str] = "fg-isam2"
+    bound: ClassVar[str | None] = "oracle-pose"
     summary: ClassVar[str] = "factor graph with the new topology factor, incremental iSAM2 (filtered)"
     Params: ClassVar[type[Params]] = ISAM2Params
     needs_truth: ClassVar[bool] = False

@@ -140,6 +140,7 @@ class ICPDALC(ICP):
     """
 
     name: ClassVar[str] = "icp-da-lc"
+    bound: ClassVar[str | None] = "oracle-kf"
     summary: ClassVar[str] = (
         "implicit cooperative positioning with BP data association at each vehicle, MAP "
         "pairing and distributed Gaussian BP + consensus (low complexity)"

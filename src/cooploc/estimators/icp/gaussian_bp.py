@@ -219,6 +219,7 @@ class ICP:
     """
 
     name: ClassVar[str] = "icp"
+    bound: ClassVar[str | None] = "oracle-kf"
     summary: ClassVar[str] = (
         "implicit cooperative positioning with KNOWN association (reads Truth.origin), "
         "distributed Gaussian BP + consensus — Brambilla 2020's bound"

@@ -108,6 +108,7 @@ class ICPDAPF(ICPDALC):
     """
 
     name: ClassVar[str] = "icp-da-pf"
+    bound: ClassVar[str | None] = "oracle-kf"
     summary: ClassVar[str] = (
         "implicit cooperative positioning with BP data association and particle BP: "
         "log-likelihood average + max consensus on feature particle weights"

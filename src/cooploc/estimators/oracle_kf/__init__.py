@@ -56,6 +56,7 @@ class OracleKF:
     """
 
     name: ClassVar[str] = "oracle-kf"
+    bound: ClassVar[str | None] = "oracle-kf"
     summary: ClassVar[str] = (
         "centralized joint Kalman filter with KNOWN association (reads Truth.origin) — "
         "the accuracy bound, not a method"

@@ -130,6 +130,7 @@ class OraclePose(_PoseBound):
     """
 
     name: ClassVar[str] = "oracle-pose"
+    bound: ClassVar[str | None] = "oracle-pose"
     summary: ClassVar[str] = ("iterated EKF of the vehicles AND the radar's unknown pose from GPS, odometry "
                               "and radar rows with KNOWN association — the filtered bound, not a method")
 
@@ -160,6 +161,7 @@ class OraclePoseSmoother(_PoseBound):
     """
 
     name: ClassVar[str] = "oracle-pose-smoother"
+    bound: ClassVar[str | None] = "oracle-pose-smoother"
     summary: ClassVar[str] = ("batch LM smoother of the vehicles AND the radar's unknown pose from GPS, "
                               "odometry and radar rows with KNOWN association — the smoothed bound")
 

@@ -113,6 +113,7 @@ class PLBP:
     """
 
     name: ClassVar[str] = "plbp"
+    bound: ClassVar[str | None] = None
     summary: ClassVar[str] = "AoA cooperative position + heading, posterior-linearization Gaussian BP"
     Params: ClassVar[type[Params]] = PLBPParams
     needs_truth: ClassVar[bool] = False
@@ -223,6 +224,7 @@ class PriorLBP(PLBP):
     """
 
     name: ClassVar[str] = "prior-lbp"
+    bound: ClassVar[str | None] = None
     summary: ClassVar[str] = "AoA cooperative position + heading, Gaussian BP linearized at the priors"
     Params: ClassVar[type[Params]] = PriorLBPParams
     posterior: ClassVar[bool] = False

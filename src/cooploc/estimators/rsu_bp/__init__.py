@@ -132,6 +132,7 @@ class RsuBP:
     """
 
     name: ClassVar[str] = "rsu-bp"
+    bound: ClassVar[str | None] = "oracle-kf"
     summary: ClassVar[str] = (
         "centralized particle BP with loopy-BP data association at the road-side unit "
         "(Fröhle et al. 2018)"

@@ -142,6 +142,7 @@ class SmePF(_SmeFilter):
     """
 
     name: ClassVar[str] = "sme-pf"
+    bound: ClassVar[str | None] = "oracle-pose"
     summary: ClassVar[str] = ("symmetric measurement equation particle filter: anonymous GPS "
                               "(sum of powers) + radar topology of unknown pose (Zhang 2016)")
     Params: ClassVar[type[Params]] = SmePFParams

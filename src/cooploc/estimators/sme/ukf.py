@@ -75,6 +75,7 @@ class SmeUKF(_SmeFilter):
     """
 
     name: ClassVar[str] = "sme-ukf"
+    bound: ClassVar[str | None] = "oracle-pose"
     summary: ClassVar[str] = "symmetric measurement equation under an unscented Kalman filter (check)"
     Params: ClassVar[type[Params]] = SmeUKFParams
 
