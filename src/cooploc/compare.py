@@ -221,46 +221,39 @@ def _num(value: float | None, digits: int = 2, unit: str = "") -> str:
     return "—" if value is None else f"{value:.{digits}f}{unit}"
 
 
-def overview(data: Mapping[str, Any]) -> list[str]:
-    """The estimators × scenarios table at the top of compare.md: RMSE (ratio to the bound)."""
+def _grid(data: Mapping[str, Any], cell: Any, header: Sequence[str] = ()) -> list[str]:
+    """An estimators × scenarios Markdown table: `cell(row)` for each estimator that ran,
+    "n/a" where it was refused; `header` rows after the column line."""
     scenarios = data["scenarios"]
     names = list(dict.fromkeys(n for t in scenarios for n in t["estimators"]))
     lines = ["| estimator | " + " | ".join(t["scenario"] for t in scenarios) + " |",
-             "| --- |" + " ---: |" * len(scenarios),
-             "| *bound* | " + " | ".join(t["bound"] or "none" for t in scenarios) + " |"]
+             "| --- |" + " ---: |" * len(scenarios), *header]
     for name in names:
-        cells = []
-        for t in scenarios:
-            row = t["estimators"].get(name)
-            if row is None or "refused" in row:
-                cells.append("" if row is None else "n/a")
-            else:
-                ratio = row["ratio_bound"]
-                shown = "" if ratio is None else f" ({ratio:.2f}×)"
-                cells.append(_num(row["vehicle_rmse"], unit=" m") + shown)
+        rows = [t["estimators"].get(name) for t in scenarios]
+        cells = ["" if row is None else "n/a" if "refused" in row else cell(row) for row in rows]
         lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
     return lines
+
+
+def overview(data: Mapping[str, Any]) -> list[str]:
+    """The estimators × scenarios table at the top of compare.md: RMSE (ratio to the bound)."""
+    def cell(row: Mapping[str, Any]) -> str:
+        ratio = row["ratio_bound"]
+        return _num(row["vehicle_rmse"], unit=" m") + ("" if ratio is None else f" ({ratio:.2f}×)")
+
+    bounds = "| *bound* | " + " | ".join(t["bound"] or "none" for t in data["scenarios"]) + " |"
+    return _grid(data, cell, [bounds])
 
 
 def own_bounds_overview(data: Mapping[str, Any]) -> list[str]:
     """The estimators × scenarios table of each method's ratio to the bound of its own
     sensors (`registry`: an estimator's `bound`): RMSE (ratio × that bound)."""
-    scenarios = data["scenarios"]
-    names = list(dict.fromkeys(n for t in scenarios for n in t["estimators"]))
-    lines = ["| estimator | " + " | ".join(t["scenario"] for t in scenarios) + " |",
-             "| --- |" + " ---: |" * len(scenarios)]
-    for name in names:
-        cells = []
-        for t in scenarios:
-            row = t["estimators"].get(name)
-            if row is None or "refused" in row:
-                cells.append("" if row is None else "n/a")
-                continue
-            ratio = row.get("ratio_own_bound")
-            shown = "" if ratio is None else f" ({ratio:.2f}× {row['own_bound']})"
-            cells.append(_num(row["vehicle_rmse"], unit=" m") + (shown or " (no bound)"))
-        lines.append(f"| `{name}` | " + " | ".join(cells) + " |")
-    return lines
+    def cell(row: Mapping[str, Any]) -> str:
+        ratio = row.get("ratio_own_bound")
+        shown = " (no bound)" if ratio is None else f" ({ratio:.2f}× {row['own_bound']})"
+        return _num(row["vehicle_rmse"], unit=" m") + shown
+
+    return _grid(data, cell)
 
 
 def markdown(data: Mapping[str, Any]) -> str:
