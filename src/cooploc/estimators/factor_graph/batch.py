@@ -5,9 +5,10 @@ Paper: Gulati et al., "Graph Based Vehicle Infrastructure Cooperative Localizati
 factor per step — old (eq. 8) or new (eqs. 9–16) — smoothed as one nonlinear least
 squares problem (eq. 17) by Levenberg–Marquardt, as the paper does with GTSAM.
 The graph: `graph.py`; the topology factors: `factors.py` (derivation:
-docs/factor_graph.md). GNSS rows that hold more than the position (`sumo-*`'s
-z = [p, v] + w) enter as their exact position marginal, the rows' velocity information
-not used (a choice: the graph has positions only; `graph.py`).
+docs/factor_graph.md). GNSS rows that hold more than the position (`sumo-*`'s z = [p,
+v] + w) enter as their exact position marginal and, through the motion model, as
+velocity between factors between consecutive steps (not in the paper; `graph.py`,
+`gnss_velocity`).
 
 Per step and at the end
 -----------------------
@@ -72,6 +73,9 @@ class FactorGraphParams(Params):
     huber : Huber threshold (σ units) on topology factors; 0 = plain Gaussian (paper).
     topology_odometry_noise : new factor only — add the odometry noise to σ_s
         (docs/factor_graph.md); False = radar noise only (paper, eqs. 14–16).
+    gnss_velocity : where the GNSS rows hold the velocity (`sumo-*`), add the displacement
+        the motion model predicts from two consecutive ones as a between factor
+        (`graph.py`); False = positions only (the paper's GPS).
     """
 
     solver: str = param("sparse", choices=("sparse", "gtsam"))
@@ -82,6 +86,7 @@ class FactorGraphParams(Params):
     gap_variance: float = param(900.0, gt=0)
     huber: float = param(0.0, ge=0)
     topology_odometry_noise: bool = False
+    gnss_velocity: bool = True
 
 
 class _BatchGraph:
@@ -99,7 +104,7 @@ class _BatchGraph:
         self.setup, self.params = setup, params
         least_squares.compile_kernels()  # compile (or load from cache) here, not in smooth()
         self.data = GraphData(setup, self.kind, params.gap_variance, params.topology_odometry_noise,
-                              self.name)
+                              self.name, params.gnss_velocity)
         self.filter = PositionFilter()
         self.estimates = EstimateLayout(setup, self.name)
         self.initial: list[FloatArray] = []   # filtered positions: the smoother's start

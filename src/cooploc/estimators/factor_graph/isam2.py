@@ -5,8 +5,9 @@ Paper: Gulati et al., "Graph Based Vehicle Infrastructure Cooperative Localizati
 (eqs. 9–16; derivation: docs/factor_graph.md), the graph of `graph.py`. The paper
 solves it in batch (eq. 17); iSAM2 (Kaess et al. 2012) updates the same solution
 incrementally, one frame at a time. GNSS rows that hold more than the position
-(`sumo-*`'s z = [p, v] + w) enter as their exact position marginal, the rows' velocity
-information not used (a choice: the graph has positions only; `graph.py`).
+(`sumo-*`'s z = [p, v] + w) enter as their exact position marginal and, through the
+motion model, as velocity between factors between consecutive steps (not in the paper;
+`graph.py`, `gnss_velocity`).
 
 `step` adds the frame's variables and factors (`gtsam_backend.gtsam_factors`: native
 GPS and odometry factors, one scalar-arithmetic `CustomFactor` per topology factor)
@@ -48,8 +49,8 @@ class ISAM2Params(Params):
     ----------
     relinearize_threshold : relinearise a variable whose update exceeds this (m).
     relinearize_skip : check for relinearisation every this many updates.
-    gap_variance, huber, topology_odometry_noise : as for the batch estimators
-        (`FactorGraphParams`).
+    gap_variance, huber, topology_odometry_noise, gnss_velocity : as for the batch
+        estimators (`FactorGraphParams`).
     """
 
     relinearize_threshold: float = param(0.1, gt=0)
@@ -57,6 +58,7 @@ class ISAM2Params(Params):
     gap_variance: float = param(900.0, gt=0)
     huber: float = param(0.0, ge=0)
     topology_odometry_noise: bool = False
+    gnss_velocity: bool = True
 
 
 @register_estimator
@@ -79,7 +81,8 @@ class FgIsam2:
         import gtsam
 
         self.setup, self.params = setup, params
-        self.data = GraphData(setup, NEW, params.gap_variance, params.topology_odometry_noise, self.name)
+        self.data = GraphData(setup, NEW, params.gap_variance, params.topology_odometry_noise, self.name,
+                              params.gnss_velocity)
         self.estimates = EstimateLayout(setup, self.name)
         isam_params = gtsam.ISAM2Params()
         isam_params.setRelinearizeThreshold(params.relinearize_threshold)
