@@ -76,6 +76,9 @@ class FactorGraphParams(Params):
     gnss_velocity : where the GNSS rows hold the velocity (`sumo-*`), add the displacement
         the motion model predicts from two consecutive ones as a between factor
         (`graph.py`); False = positions only (the paper's GPS).
+    view_confidence, gate_probability : traffic (per-radar topology factors,
+        `graph.py`): least probability that a radar's in-view set is right; χ² gate of
+        a radar row against a belief and of the topology against its prediction.
     """
 
     solver: str = param("sparse", choices=("sparse", "gtsam"))
@@ -87,6 +90,8 @@ class FactorGraphParams(Params):
     huber: float = param(0.0, ge=0)
     topology_odometry_noise: bool = False
     gnss_velocity: bool = True
+    view_confidence: float = param(0.9, gt=0, le=1)
+    gate_probability: float = param(0.9999, gt=0, lt=1)
 
 
 class _BatchGraph:
@@ -104,7 +109,8 @@ class _BatchGraph:
         self.setup, self.params = setup, params
         least_squares.compile_kernels()  # compile (or load from cache) here, not in smooth()
         self.data = GraphData(setup, self.kind, params.gap_variance, params.topology_odometry_noise,
-                              self.name, params.gnss_velocity)
+                              self.name, params.gnss_velocity, params.view_confidence,
+                              params.gate_probability)
         self.filter = PositionFilter()
         self.estimates = EstimateLayout(setup, self.name)
         self.initial: list[FloatArray] = []   # filtered positions: the smoother's start
@@ -113,10 +119,12 @@ class _BatchGraph:
         """Add the frame's factors; return the filtered estimate of GPS + odometry."""
         f = self.data.add_frame(frame)
         belief = self.filter.step(f)
+        self.data.add_radar_topology(frame, belief.mean, belief.cov)   # traffic: per radar
         self.initial.append(belief.mean)
         vel, vel_cov = self.estimates.filtered_velocity(f.delta)
         return self.estimates.build(f.ids, belief.mean, belief.cov, vel, vel_cov,
-                                    {"filtered": True, "topology": self.data.n_topology})
+                                    {"filtered": True, "topology": self.data.n_topology,
+                                     "radar_skipped": dict(self.data.radar_skipped)})
 
     def solve(self) -> LMResult:
         """Solve the whole graph (positions and marginal covariances of every variable)."""

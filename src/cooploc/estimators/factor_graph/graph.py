@@ -54,11 +54,13 @@ threshold in σ units) applies the Huber loss to the topology factors only.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
+from scipy.stats import chi2
 
 from cooploc.estimators.base import birth_beliefs, gnss_position_part, position_fixes
 from cooploc.estimators.factor_graph.factors import (
@@ -70,7 +72,9 @@ from cooploc.estimators.factor_graph.factors import (
     squared_topology,
     topology_jacobians,
 )
+from cooploc.estimators.road_radars import RadarFields, sees_every_vehicle, topology_nis
 from cooploc.least_squares import huber_cost_residual, huber_sqrt_weights, whitener
+from cooploc.sensors import InfrastructureRadar
 from cooploc.types import Batch, FloatArray, Frame, IntArray, Setup
 
 if TYPE_CHECKING:
@@ -89,8 +93,9 @@ class FrameFactors:
     variable of the same vehicle at the previous step (−1: a new chain).
     delta (n, 2): the vehicle's odometry row, NaN unless it has exactly one.
     unary_*: priors and GPS (M,), (M, 2), (M, 2, 2); between_*: odometry and gaps.
-    topology_*: K factors of this frame: current (K, n), previous (K, n), delta
-    (K, n, 2), s (K,), sigma (K,).
+    topology_*: K factors of this frame, each over the m_k vehicles its radar sees
+    (every present vehicle in the papers' setup): current, previous (K tuples of (m_k,)),
+    delta (K tuples of (m_k, 2)), s (K,), sigma (K,).
     """
 
     vars: IntArray
@@ -104,9 +109,9 @@ class FrameFactors:
     between_b: IntArray
     between_z: FloatArray
     between_cov: FloatArray
-    topology_current: IntArray
-    topology_previous: IntArray
-    topology_delta: FloatArray
+    topology_current: tuple[IntArray, ...]
+    topology_previous: tuple[IntArray, ...]
+    topology_delta: tuple[FloatArray, ...]
     topology_s: FloatArray
     topology_sigma: FloatArray
 
@@ -133,11 +138,15 @@ class GraphData:
     gap_variance : m², between-factor covariance per axis where odometry is missing.
     odometry_noise : new factor only — add `odometry_topology_variance` to σ_s².
     gnss_velocity : add the GNSS velocity factors where the rows hold the velocity.
+    view_confidence, gate_probability : per-radar mode (module docstring): least
+        probability of a radar's in-view set; χ² gate of a row against a belief and of
+        the measured topology against its prediction.
     """
 
     def __init__(self, setup: Setup, kind: str, gap_variance: float,
                  odometry_noise: bool = False, name: str = "the factor graph",
-                 gnss_velocity: bool = True) -> None:
+                 gnss_velocity: bool = True, view_confidence: float = 0.9,
+                 gate_probability: float = 0.9999) -> None:
         self.setup, self.kind, self.gap_variance = setup, kind, gap_variance
         self.odometry_noise = odometry_noise and kind == NEW
         self.frames: list[FrameFactors] = []
@@ -148,6 +157,12 @@ class GraphData:
         self._pos = np.array(setup.vehicle_layout.position)
         self._gnss_part = gnss_position_part(setup, name)
         self._velocity = velocity_factor_model(setup) if gnss_velocity else None
+        radar = setup.sensors.get("radar")
+        #: per-radar mode (traffic): the radars' estimated poses and in-view sets
+        self.fields = (RadarFields(radar, chi2.ppf(gate_probability, df=2), view_confidence)
+                       if isinstance(radar, InfrastructureRadar) and not sees_every_vehicle(setup) else None)
+        self._gate_1 = chi2.ppf(gate_probability, df=1)
+        self.radar_skipped: dict[int, str] = {}   # of the last frame: radar id → why
         self._v = np.zeros((0, 2))           # each present vehicle's GNSS velocity (NaN: none)
         self._v_cov = np.zeros((0, 2, 2))
 
@@ -198,7 +213,7 @@ class GraphData:
         t_s, t_sigma = [], []
         radar = frame.batches.get("radar")
         usable = n >= 2 and (self.kind == OLD or bool(cont.all() and (count == 1).all()))
-        if usable and radar is not None and len(radar):
+        if self.fields is None and usable and radar is not None and len(radar):
             for sensor in np.unique(radar.sensor):
                 rows = radar.sensor == sensor
                 if rows.sum() != n:
@@ -217,14 +232,66 @@ class GraphData:
             np.concatenate(u_z) if u_z else np.zeros((0, 2)),
             np.concatenate(u_cov) if u_cov else np.zeros((0, 2, 2)),
             b_a, b_b, b_z, b_cov,
-            np.repeat(new_vars[None], K, 0),
-            np.repeat((prev if self.kind == NEW else new_vars)[None], K, 0),
-            np.repeat(np.nan_to_num(delta)[None], K, 0),
-            np.array(t_s, float), np.array(t_sigma, float),
+            (new_vars,) * K, ((prev if self.kind == NEW else new_vars),) * K,
+            (np.nan_to_num(delta),) * K, np.array(t_s, float), np.array(t_sigma, float),
         )
         self.frames.append(factors)
         self._ids, self._vars = ids, new_vars
         return factors
+
+    def add_radar_topology(self, frame: Frame, mean: FloatArray, cov: FloatArray) -> FrameFactors:
+        """Per-radar mode (traffic, module docstring): add to the last frame one topology
+        factor per radar over the vehicles it sees, found from the estimator's beliefs of
+        the frame's vehicles, mean (n, 2) and cov (n, 2, 2) (never the truth); the frame's
+        factors. Radars left out and why: `radar_skipped`. No-op in the papers' setup."""
+        f = self.frames[-1]
+        self.radar_skipped = {}
+        radar = frame.batches.get("radar")
+        if self.fields is None or radar is None or not len(radar) or f.vars.size == 0:
+            return f
+        var = np.einsum("nii->n", cov) / 2
+        odometry_cov = None
+        if self.odometry_noise:
+            odometry = frame.batches.get("odometry")
+            odometry_cov = odometry.cov if odometry is not None and len(odometry) else None
+        chained = (f.previous >= 0) & np.isfinite(f.delta).all(axis=1)
+        current, previous, deltas, t_s, t_sigma = [], [], [], [], []
+        for sensor in np.unique(radar.sensor).tolist():
+            rows = radar.sensor == sensor
+            q = radar.z[rows]
+            seen, reason = self.fields.in_view(sensor, q, mean, var)
+            if seen is not None and seen.size < 2:
+                seen, reason = None, "fewer than two vehicles in view (the topology is then 0)"
+            if seen is not None and self.kind == NEW and not chained[seen].all():
+                seen, reason = None, "a vehicle it sees has no single odometry row (new factor)"
+            if seen is not None:
+                s, s_var = radar_topology(q, radar.cov[rows])
+                radar_var = float(np.einsum("mii->m", radar.cov[rows]).mean() / 2)
+                if topology_nis(mean[seen], var[seen], s, radar_var) > self._gate_1:
+                    seen, reason = None, "its topology lies outside the gate of the beliefs"
+            if seen is None:
+                self.radar_skipped[sensor] = reason
+                continue
+            if odometry_cov is not None:
+                s_var += odometry_topology_variance(q, odometry_cov)
+            if s_var <= 0:
+                continue
+            current.append(f.vars[seen])
+            previous.append(f.previous[seen] if self.kind == NEW else f.vars[seen])
+            deltas.append(np.nan_to_num(f.delta[seen]))
+            t_s.append(s)
+            t_sigma.append(np.sqrt(s_var))
+        if not t_s:
+            return f
+        self.n_topology += len(t_s)
+        f = dataclasses.replace(
+            f, topology_current=f.topology_current + tuple(current),
+            topology_previous=f.topology_previous + tuple(previous),
+            topology_delta=f.topology_delta + tuple(deltas),
+            topology_s=np.concatenate([f.topology_s, t_s]),
+            topology_sigma=np.concatenate([f.topology_sigma, t_sigma]))
+        self.frames[-1] = f
+        return f
 
     def _velocity_factors(self, ids: IntArray, cont: npt.NDArray[np.bool_], gnss: Batch | None
                           ) -> tuple[IntArray, FloatArray, FloatArray]:
@@ -312,14 +379,15 @@ class GraphProblem:
         def cat(name: str) -> np.ndarray:
             return np.concatenate([getattr(f, name) for f in frames])
 
-        groups: dict[int, list[FrameFactors]] = {}
+        # factors grouped by how many vehicles they join, each group stacked (K_m, m)
+        groups: dict[int, list[tuple]] = {}
         for f in frames:
-            if f.topology_s.size:
-                groups.setdefault(f.vars.size, []).append(f)
-        topology = tuple(
-            tuple(np.concatenate([getattr(f, "topology_" + part) for f in group])
-                  for part in ("current", "previous", "delta", "s", "sigma"))
-            for group in groups.values())
+            for k in range(f.topology_s.size):
+                groups.setdefault(f.topology_current[k].size, []).append(
+                    (f.topology_current[k], f.topology_previous[k], f.topology_delta[k],
+                     f.topology_s[k], f.topology_sigma[k]))
+        topology = tuple(tuple(np.array(part) for part in zip(*group, strict=True))
+                         for group in groups.values())
         return cls(data.n_vars, cat("unary_var"), cat("unary_z"), whitener(cat("unary_cov")),
                    cat("between_a"), cat("between_b"), cat("between_z"),
                    whitener(cat("between_cov")), topology, data.kind, huber)  # type: ignore[arg-type]

@@ -30,7 +30,7 @@ from typing import ClassVar
 import numpy as np
 
 from cooploc.errors import EstimatorError
-from cooploc.estimators.factor_graph.estimates import EstimateLayout
+from cooploc.estimators.factor_graph.estimates import EstimateLayout, PositionFilter
 from cooploc.estimators.factor_graph.factors import NEW
 from cooploc.estimators.factor_graph.graph import GraphData
 from cooploc.estimators.factor_graph.gtsam_backend import first_sentence, gtsam_factors
@@ -49,8 +49,8 @@ class ISAM2Params(Params):
     ----------
     relinearize_threshold : relinearise a variable whose update exceeds this (m).
     relinearize_skip : check for relinearisation every this many updates.
-    gap_variance, huber, topology_odometry_noise, gnss_velocity : as for the batch
-        estimators (`FactorGraphParams`).
+    gap_variance, huber, topology_odometry_noise, gnss_velocity, view_confidence,
+        gate_probability : as for the batch estimators (`FactorGraphParams`).
     """
 
     relinearize_threshold: float = param(0.1, gt=0)
@@ -59,6 +59,8 @@ class ISAM2Params(Params):
     huber: float = param(0.0, ge=0)
     topology_odometry_noise: bool = False
     gnss_velocity: bool = True
+    view_confidence: float = param(0.9, gt=0, le=1)
+    gate_probability: float = param(0.9999, gt=0, lt=1)
 
 
 @register_estimator
@@ -82,7 +84,8 @@ class FgIsam2:
 
         self.setup, self.params = setup, params
         self.data = GraphData(setup, NEW, params.gap_variance, params.topology_odometry_noise, self.name,
-                              params.gnss_velocity)
+                              params.gnss_velocity, params.view_confidence, params.gate_probability)
+        self.filter = PositionFilter()   # the linear part: beliefs that find the radars' vehicles
         self.estimates = EstimateLayout(setup, self.name)
         isam_params = gtsam.ISAM2Params()
         isam_params.setRelinearizeThreshold(params.relinearize_threshold)
@@ -95,6 +98,10 @@ class FgIsam2:
     def step(self, frame: Frame) -> Estimate:
         """Add the frame to iSAM2; its current estimate of the frame's vehicles."""
         f = self.data.add_frame(frame)
+        belief = None
+        if self.data.fields is not None:   # traffic: per-radar topology from the linear part's beliefs
+            belief = self.filter.step(f)
+            f = self.data.add_radar_topology(frame, belief.mean, belief.cov)
         vel, vel_cov = self.estimates.filtered_velocity(f.delta)
         n = f.vars.size
         if n == 0:
@@ -110,6 +117,11 @@ class FgIsam2:
         no_odometry = ~np.isfinite(f.delta).all(axis=1)
         rows = np.flatnonzero(no_odometry[unary])
         initial[unary[rows]] = f.unary_z[rows]
+        if belief is not None:
+            # traffic: the topology factors are linearised at the new variables' initial
+            # values until iSAM2 relinearises them; the linear part's estimate of this
+            # step (its GPS, odometry and velocity) is closer than last estimate + odometry
+            initial = belief.mean
         values = self._gtsam.Values()
         for v, p in zip(f.vars.tolist(), initial, strict=True):
             values.insert(v, p)
@@ -126,4 +138,5 @@ class FgIsam2:
         cov = 0.5 * (cov + cov.transpose(0, 2, 1))
         self._last_vars, self._last = f.vars, pos
         return self.estimates.build(f.ids, pos, cov, vel, vel_cov,
-                                    {"filtered": True, "topology": self.data.n_topology})
+                                    {"filtered": True, "topology": self.data.n_topology,
+                                     "radar_skipped": dict(self.data.radar_skipped)})
