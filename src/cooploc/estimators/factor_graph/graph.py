@@ -35,11 +35,24 @@ model, as in the paper). Factors, each a Gaussian residual:
   where a vehicle present at t − 1 and t has neither an odometry row nor a velocity
   factor, a *gap* factor with zero displacement and covariance `gap_variance` · I keeps
   its chain connected;
-- topology (one scalar factor per radar and step, `factors.py`): left out at every step
-  where the radar does not report exactly as many rows as there are vehicles present
-  (the paper's "plug and play" remark, §IV-B; missed detections and clutter are its
-  future work); the new factor is also left out where a vehicle has no single odometry
-  row (first step, a vehicle that just entered).
+- topology (one scalar factor per radar and step, `factors.py`). In the papers' setup
+  (one radar, unbounded all-around field: `road_radars.sees_every_vehicle`) the factor
+  joins every present vehicle and is left out at every step where the radar does not
+  report exactly as many rows as there are vehicles present (the paper's "plug and
+  play" remark, §IV-B; missed detections and clutter are its future work); the new
+  factor is also left out where a vehicle has no single odometry row (first step, a
+  vehicle that just entered).
+- per-radar topology (traffic, `sumo-*`: several radars of finite range, each seeing a
+  few vehicles; `add_radar_topology`): the factor of each radar joins the vehicles *it*
+  sees, found by `road_radars.RadarFields` from the estimator's beliefs of the step
+  (the linear part's filter, never the truth): the radar's unknown pose registered and
+  tracked from its rows, the in-view set taken only when it is the right one with
+  probability ≥ `view_confidence`, and the measured topology within the χ²₁ gate
+  (`gate_probability`) of its prediction (`road_radars.topology_nis`). A radar is
+  skipped, with the reason in `radar_skipped` (``Estimate.info["radar_skipped"]``),
+  when its set is uncertain, has fewer than two vehicles, fails the gate, or (new
+  factor) holds a vehicle without a single odometry row. Vehicles that enter start a
+  chain (prior and GPS) and join factors once seen; those that leave end theirs.
 
 The problem, the values and the optimizer are kept apart as in GTSAM: `GraphData` is
 the growing graph (one `FrameFactors` per frame); `GraphProblem` is its residuals in
