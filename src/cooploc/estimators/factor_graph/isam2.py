@@ -18,14 +18,16 @@ relinearised at most every `relinearize_skip` = 10 updates (GTSAM's default) in 
 papers' setup, which bounds the GIL-bound Python cost of the CustomFactors.
 
 Traffic (`sumo-*`): the per-radar topology factors of `graph.py` (each radar's own
-vehicles, found from the beliefs of the linear part, `PositionFilter`); a new
-variable starts at the linear part's estimate of its step, and iSAM2 checks for
-relinearisation at every update — with GTSAM's 10 a topology factor stays linearised
-at a guess metres off for up to 10 steps, and the filtered error was no better than
-without the radars (sumo-grid-tlr, 30 s, odometry, 5 runs: 2.749 m against 2.739 m;
-every update: 2.731 m, `gnss-kf` 2.742 m). Variables of vehicles that leave stay in
-iSAM2 (their chains end; nothing links them to later steps but the topology factors
-of the steps they were seen in). Time per step:
+vehicles, found from the beliefs of the linear part, `PositionFilter`), with the
+odometry's share in their σ_s (`topology_odometry_noise` "auto"); a new variable starts
+at the linear part's estimate of its step, and iSAM2 checks for relinearisation at
+every update (`relinearize_skip` 0 = auto): a topology factor linearised at a guess
+metres off otherwise stays so for up to 10 steps. On sumo-grid-tlr (30 s, odometry) it
+gives 2.622 m (5 runs, seed 0) and 3.035 m (10 runs, seed 1) against 2.629 and 3.053 m
+with 10, at about 2–4× the time per step; `gnss-kf` 2.742 and 3.086 m. Variables of
+vehicles that leave stay in iSAM2 (their chains end; only the topology factors of the
+steps they were seen in link them to other vehicles), so a step costs more as the run
+grows. Time per step:
 `benchmarks/factor_graph.py` (`isam2`).
 
 `gtsam` is imported when the estimator is constructed.
@@ -40,6 +42,7 @@ from typing import ClassVar
 import numpy as np
 
 from cooploc.errors import EstimatorError
+from cooploc.estimators.factor_graph.batch import odometry_noise
 from cooploc.estimators.factor_graph.estimates import EstimateLayout, PositionFilter
 from cooploc.estimators.factor_graph.factors import NEW
 from cooploc.estimators.factor_graph.graph import GraphData
@@ -68,7 +71,7 @@ class ISAM2Params(Params):
     relinearize_skip: int = param(0, ge=0)
     gap_variance: float = param(900.0, gt=0)
     huber: float = param(0.0, ge=0)
-    topology_odometry_noise: bool = False
+    topology_odometry_noise: str = param("auto", choices=("auto", "true", "false"))
     gnss_velocity: bool = True
     view_confidence: float = param(0.9, gt=0, le=1)
     gate_probability: float = param(0.9999, gt=0, lt=1)
@@ -94,7 +97,7 @@ class FgIsam2:
         import gtsam
 
         self.setup, self.params = setup, params
-        self.data = GraphData(setup, NEW, params.gap_variance, params.topology_odometry_noise, self.name,
+        self.data = GraphData(setup, NEW, params.gap_variance, odometry_noise(setup, params), self.name,
                               params.gnss_velocity, params.view_confidence, params.gate_probability)
         self.filter = PositionFilter()   # the linear part: beliefs that find the radars' vehicles
         self.estimates = EstimateLayout(setup, self.name)
