@@ -338,6 +338,8 @@ def test_params_are_validated() -> None:
         FactorGraphParams(solver="ceres")
     with pytest.raises(ConfigError, match="gap_variance"):
         dataclasses.replace(FactorGraphParams(), gap_variance=-1.0)
+    with pytest.raises(ConfigError, match="topology_odometry_noise"):
+        FactorGraphParams(topology_odometry_noise="sometimes")
 
 
 def test_topology_odometry_noise_option(seed: int) -> None:
