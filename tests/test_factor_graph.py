@@ -29,6 +29,8 @@ from cooploc.estimators.factor_graph import (
     squared_topology,
     topology_jacobians,
 )
+from cooploc.estimators.factor_graph.estimates import PositionFilter
+from cooploc.estimators.factor_graph.graph import velocity_factor_model
 from cooploc.geometry import rotation, to_local
 from cooploc.scenarios import get_preset
 from cooploc.types import Batch, Frame, Recording
@@ -336,6 +338,8 @@ def test_params_are_validated() -> None:
         FactorGraphParams(solver="ceres")
     with pytest.raises(ConfigError, match="gap_variance"):
         dataclasses.replace(FactorGraphParams(), gap_variance=-1.0)
+    with pytest.raises(ConfigError, match="topology_odometry_noise"):
+        FactorGraphParams(topology_odometry_noise="sometimes")
 
 
 def test_topology_odometry_noise_option(seed: int) -> None:
@@ -406,3 +410,79 @@ def test_gps_factor_takes_the_position_of_position_and_velocity_rows(seed: int) 
         for a, b in zip(*runs, strict=True):
             np.testing.assert_array_equal(a.vehicles.mean, b.vehicles.mean, err_msg=name)
             np.testing.assert_array_equal(a.vehicles.cov, b.vehicles.cov, err_msg=name)
+
+
+def _with_gnss(setup, state_indices, cov):
+    from cooploc.sensors import GnssPosition
+
+    sensors = dict(setup.sensors)
+    sensors["gnss"] = GnssPosition(default_cov=cov, state_indices=state_indices)
+    return dataclasses.replace(setup, sensors=sensors)
+
+
+def test_velocity_factor_is_the_motion_models_conditional_displacement(rng: np.random.Generator) -> None:
+    """The GNSS velocity factor (graph.py) is E[p_t − p_{t−1} | v_{t−1}, v_t] of the setup's
+    motion model: analytically (constant velocity) the trapezoid T (v_{t−1} + v_t)/2 with
+    q T³/12 I; by moments over draws of the model, a residual of zero mean, that
+    covariance, and uncorrelated with both velocities (what makes it the conditional)."""
+    rec = recording([1, 90], steps=3)
+    setup = _with_gnss(rec.setup, (0, 1, 2, 3), np.diag([9.0, 9.0, 0.04, 0.04]))
+    part, A, G, Q_c = velocity_factor_model(setup)
+    T, q = setup.dt, setup.vehicle_motion.noise_density
+    np.testing.assert_array_equal(part, [2, 3])
+    np.testing.assert_allclose(A, T / 2 * np.eye(2), rtol=1e-12)
+    np.testing.assert_allclose(G, T / 2 * np.eye(2), rtol=1e-12)
+    np.testing.assert_allclose(Q_c, q * T**3 / 12 * np.eye(2), rtol=1e-12)
+    n = 200_000
+    F, Q = setup.vehicle_motion.transition_matrix(T), setup.vehicle_motion.noise_covariance(T)
+    before = rng.normal(0.0, 5.0, (n, 4))
+    after = before @ F.T + rng.multivariate_normal(np.zeros(4), Q, n)
+    e = after[:, :2] - before[:, :2] - before[:, 2:] @ A.T - after[:, 2:] @ G.T
+    # 5 σ of a mean and of sample (co)variances over n draws (failure probability ~1e-6)
+    tol = 5 * np.sqrt(Q_c[0, 0] / n)
+    np.testing.assert_allclose(e.mean(0), 0.0, atol=tol)
+    np.testing.assert_allclose(np.cov(e.T), Q_c, atol=5 * np.sqrt(2 / n) * Q_c[0, 0])
+    for v in (before[:, 2:], after[:, 2:]):
+        cross = (e - e.mean(0)).T @ (v - v.mean(0)) / n
+        np.testing.assert_allclose(cross, 0.0, atol=5 * np.sqrt(Q_c[0, 0] * v.var(0).max() / n))
+    assert velocity_factor_model(rec.setup) is None  # Gulati's GPS: positions only
+
+
+def test_velocity_factors_enter_only_with_uncorrelated_velocity_rows(seed: int) -> None:
+    """Rows [p, v] with independent noise add one velocity factor per continuing vehicle
+    and step (none at the first step, none with `gnss_velocity=False`), each equal to the
+    factor built by hand. The filter's estimate of the last step (odometry and velocity
+    fused) is the graph's solution there, as filter and smoother agree at the end."""
+    rec = recording([seed, 91], n=3, steps=6)
+    grown = with_velocity_fixes(rec, [seed, 92])
+    frames = []
+    for f in grown.frames:  # the same rows with the position–velocity cross terms removed
+        g = f.batches["gnss"]
+        cov = g.cov.copy()
+        cov[:, :2, 2:] = cov[:, 2:, :2] = 0.0
+        batches = {k: b for k, b in f.batches.items() if k != "radar"}  # linear-Gaussian graph
+        batches["gnss"] = Batch(g.z, cov, g.sensor, g.subject)
+        frames.append(dataclasses.replace(f, batches=batches))
+    setup = _with_gnss(rec.setup, (0, 1, 2, 3), frames[0].batches["gnss"].cov[0])
+    on, off = GraphData(setup, NEW, 900.0), GraphData(setup, NEW, 900.0, gnss_velocity=False)
+    _, A, G, Q_c = velocity_factor_model(setup)
+    for k, f in enumerate(frames):
+        a, b = on.add_frame(f), off.add_frame(f)
+        n = f.vehicles.size
+        assert a.between_a.size == b.between_a.size + (n if k else 0)
+        if k:
+            g, h = frames[k - 1].batches["gnss"], f.batches["gnss"]
+            i = np.argsort(g.subject)
+            j = np.argsort(h.subject)
+            z = g.z[i][:, 2:] @ A.T + h.z[j][:, 2:] @ G.T
+            cov = Q_c + 2 * (A @ g.cov[i][:, 2:, 2:] @ A.T + G @ h.cov[j][:, 2:, 2:] @ G.T)
+            np.testing.assert_allclose(a.between_z[-n:], z, rtol=1e-12)
+            np.testing.assert_allclose(a.between_cov[-n:], cov, rtol=1e-12)
+    belief = None
+    filt = PositionFilter()
+    for f in on.frames:
+        belief = filt.step(f)
+    result = solve_lm(GraphProblem.of(on).linearize, np.zeros((on.n_vars, 2)))
+    last = on.frames[-1].vars
+    np.testing.assert_allclose(belief.mean, result.x[last], atol=1e-6)
+    np.testing.assert_allclose(belief.cov, result.cov[last], rtol=1e-6)

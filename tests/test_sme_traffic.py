@@ -17,7 +17,8 @@ import pytest
 from scipy.stats import chi2
 
 from cooploc.association import unexplained_rows
-from cooploc.estimators.sme.traffic import RadarFields, gate_groups
+from cooploc.estimators.road_radars import RadarFields
+from cooploc.estimators.sme.traffic import gate_groups
 from cooploc.geometry import to_local
 from cooploc.registry import get_estimator, make_estimator
 from cooploc.sensors import InfrastructureRadar

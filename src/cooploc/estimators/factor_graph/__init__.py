@@ -11,6 +11,11 @@ association: the *old* factor (eq. 8) on the current positions, the *new* one
 new factor's residual, its noise and what happens under missed detections and
 clutter: docs/factor_graph.md.
 
+In traffic (`sumo-*`), where several road-side radars of unknown pose each see a few
+vehicles and vehicles come and go, one topology factor per radar over the vehicles it
+sees (found from the estimator's beliefs: `cooploc.estimators.road_radars`, shared with
+SME), and the GNSS velocity as a between factor where the rows hold it (`graph.py`).
+
 Kept apart as in GTSAM — the problem, the values, the optimizer:
 
 - `factors`: the topology residuals, Jacobians (eq. 19) and noise (eqs. 14–16);

@@ -33,7 +33,9 @@ _I2 = np.eye(2)
 class PositionFilter:
     """Kalman filter of the graph's linear part per vehicle: p_t = p_{t−1} + δ_t + n, GPS.
 
-    A vehicle with several odometry rows in one step is predicted with its first row.
+    A vehicle with several between rows in one step (odometry and the GNSS velocity
+    factor, `graph.py`) is predicted with their fusion: independent measurements of the
+    same displacement, so one row with the summed information is exact.
     """
 
     def __init__(self) -> None:
@@ -51,9 +53,18 @@ class PositionFilter:
             mean[cont], cov[cont] = self.mean[at], self.cov[at]
         # predict with the between rows of this frame: p_t = p_{t−1} + δ_t, P += R
         b = f.between_b - (f.vars[0] if n else 0)
-        first = slice(None) if np.array_equal(b, np.arange(n)) else np.unique(b, return_index=True)[1]
-        mean[b[first]] += f.between_z[first]
-        cov[b[first]] += f.between_cov[first]
+        if np.array_equal(b, np.arange(n)):  # one row per vehicle, in order: the usual step
+            mean += f.between_z
+            cov += f.between_cov
+        elif b.size:
+            info = np.linalg.inv(f.between_cov)
+            total, weighted = np.zeros((n, 2, 2)), np.zeros((n, 2))
+            np.add.at(total, b, info)
+            np.add.at(weighted, b, np.einsum("mij,mj->mi", info, f.between_z))
+            i = np.unique(b)
+            fused = np.linalg.inv(total[i])
+            mean[i] += np.einsum("mij,mj->mi", fused, weighted[i])
+            cov[i] += fused
         # unary rows: the first row of a new chain is its birth prior (the belief); the
         # other rows (GPS) update it, in rounds of distinct vehicles (one round usually)
         target = f.unary_var - (f.vars[0] if n else 0)

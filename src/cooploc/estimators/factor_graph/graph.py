@@ -16,16 +16,43 @@ model, as in the paper). Factors, each a Gaussian residual:
 - GPS (unary, eqs. 6–7): p_t^i − z_t^g, covariance of the fix; the paper's GPS measures
   the position only. Where the setup's GNSS rows hold more (`sumo-*`'s z = [p, v] + w),
   the factor takes each row's exact position marginal, z_p = p + w_p with the position
-  block of its covariance (`base.position_fixes`) — a choice: the graph has no velocity
-  variables, so the rows' velocity information is not used;
+  block of its covariance (`base.position_fixes`);
+- GNSS velocity (between, not in the paper): where the rows also hold the velocity
+  (`sumo-*`, σ_v ≈ 0.1–0.45 m/s against σ_p = 3–15 m), a vehicle with one row at t − 1
+  and at t gets the displacement the setup's motion model predicts from the two
+  velocities, E[p_t − p_{t−1} | v_{t−1}, v_t] = A v_{t−1} + G v_t with
+  G = Q_pv Q_vv⁻¹ and A = F_pv − G F_vv (constant velocity: the trapezoid
+  T (v_{t−1} + v_t)/2), covariance Q_pp − G Q_vp (CV: q T³/12 I) plus the rows'
+  velocity noise A R_{t−1} Aᵀ + G R_t Gᵀ — doubled, because each row enters the two
+  factors on either side of it (its information split between them keeps the graph
+  from counting it twice). Needs a motion model whose positions integrate the
+  velocities (F_pp = I, F_vp = 0); rows whose position and velocity noise are
+  correlated give none (the factor would be correlated with the GPS factor); off with
+  `gnss_velocity=False`. Without these factors the graph had
+  only odometry (σ = 1 m per step on `sumo-*`) between steps, and the filtered
+  `fg-isam2` was worse than `gnss-kf`, which uses the velocity;
 - odometry (between, eqs. 4–5): (p_t^i − p_{t−1}^i) − δ_t^i, covariance of the row;
-  where a vehicle present at t − 1 and t has no odometry row, a *gap* factor with zero
-  displacement and covariance `gap_variance` · I keeps its chain connected;
-- topology (one scalar factor per radar and step, `factors.py`): left out at every step
-  where the radar does not report exactly as many rows as there are vehicles present
-  (the paper's "plug and play" remark, §IV-B; missed detections and clutter are its
-  future work); the new factor is also left out where a vehicle has no single odometry
-  row (first step, a vehicle that just entered).
+  where a vehicle present at t − 1 and t has neither an odometry row nor a velocity
+  factor, a *gap* factor with zero displacement and covariance `gap_variance` · I keeps
+  its chain connected;
+- topology (one scalar factor per radar and step, `factors.py`). In the papers' setup
+  (one radar, unbounded all-around field: `road_radars.sees_every_vehicle`) the factor
+  joins every present vehicle and is left out at every step where the radar does not
+  report exactly as many rows as there are vehicles present (the paper's "plug and
+  play" remark, §IV-B; missed detections and clutter are its future work); the new
+  factor is also left out where a vehicle has no single odometry row (first step, a
+  vehicle that just entered).
+- per-radar topology (traffic, `sumo-*`: several radars of finite range, each seeing a
+  few vehicles; `add_radar_topology`): the factor of each radar joins the vehicles *it*
+  sees, found by `road_radars.RadarFields` from the estimator's beliefs of the step
+  (the linear part's filter, never the truth): the radar's unknown pose registered and
+  tracked from its rows, the in-view set taken only when it is the right one with
+  probability ≥ `view_confidence`, and the measured topology within the χ²₁ gate
+  (`gate_probability`) of its prediction (`road_radars.topology_nis`). A radar is
+  skipped, with the reason in `radar_skipped` (``Estimate.info["radar_skipped"]``),
+  when its set is uncertain, has fewer than two vehicles, fails the gate, or (new
+  factor) holds a vehicle without a single odometry row. Vehicles that enter start a
+  chain (prior and GPS) and join factors once seen; those that leave end theirs.
 
 The problem, the values and the optimizer are kept apart as in GTSAM: `GraphData` is
 the growing graph (one `FrameFactors` per frame); `GraphProblem` is its residuals in
@@ -40,10 +67,13 @@ threshold in σ units) applies the Huber loss to the topology factors only.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.typing as npt
+from scipy.stats import chi2
 
 from cooploc.estimators.base import birth_beliefs, gnss_position_part, position_fixes
 from cooploc.estimators.factor_graph.factors import (
@@ -55,13 +85,15 @@ from cooploc.estimators.factor_graph.factors import (
     squared_topology,
     topology_jacobians,
 )
+from cooploc.estimators.road_radars import RadarFields, sees_every_vehicle, topology_nis
 from cooploc.least_squares import huber_cost_residual, huber_sqrt_weights, whitener
+from cooploc.sensors import InfrastructureRadar
 from cooploc.types import Batch, FloatArray, Frame, IntArray, Setup
 
 if TYPE_CHECKING:
     import scipy.sparse as sp
 
-__all__ = ["FrameFactors", "GraphData", "GraphProblem"]
+__all__ = ["FrameFactors", "GraphData", "GraphProblem", "velocity_factor_model"]
 
 _I2 = np.eye(2)
 
@@ -74,8 +106,9 @@ class FrameFactors:
     variable of the same vehicle at the previous step (−1: a new chain).
     delta (n, 2): the vehicle's odometry row, NaN unless it has exactly one.
     unary_*: priors and GPS (M,), (M, 2), (M, 2, 2); between_*: odometry and gaps.
-    topology_*: K factors of this frame: current (K, n), previous (K, n), delta
-    (K, n, 2), s (K,), sigma (K,).
+    topology_*: K factors of this frame, each over the m_k vehicles its radar sees
+    (every present vehicle in the papers' setup): current, previous (K tuples of (m_k,)),
+    delta (K tuples of (m_k, 2)), s (K,), sigma (K,).
     """
 
     vars: IntArray
@@ -89,9 +122,9 @@ class FrameFactors:
     between_b: IntArray
     between_z: FloatArray
     between_cov: FloatArray
-    topology_current: IntArray
-    topology_previous: IntArray
-    topology_delta: FloatArray
+    topology_current: tuple[IntArray, ...]
+    topology_previous: tuple[IntArray, ...]
+    topology_delta: tuple[FloatArray, ...]
     topology_s: FloatArray
     topology_sigma: FloatArray
 
@@ -117,10 +150,16 @@ class GraphData:
     kind : `OLD` or `NEW` topology factor.
     gap_variance : m², between-factor covariance per axis where odometry is missing.
     odometry_noise : new factor only — add `odometry_topology_variance` to σ_s².
+    gnss_velocity : add the GNSS velocity factors where the rows hold the velocity.
+    view_confidence, gate_probability : per-radar mode (module docstring): least
+        probability of a radar's in-view set; χ² gate of a row against a belief and of
+        the measured topology against its prediction.
     """
 
     def __init__(self, setup: Setup, kind: str, gap_variance: float,
-                 odometry_noise: bool = False, name: str = "the factor graph") -> None:
+                 odometry_noise: bool = False, name: str = "the factor graph",
+                 gnss_velocity: bool = True, view_confidence: float = 0.9,
+                 gate_probability: float = 0.9999) -> None:
         self.setup, self.kind, self.gap_variance = setup, kind, gap_variance
         self.odometry_noise = odometry_noise and kind == NEW
         self.frames: list[FrameFactors] = []
@@ -130,6 +169,15 @@ class GraphData:
         self._vars = np.zeros(0, np.int64)
         self._pos = np.array(setup.vehicle_layout.position)
         self._gnss_part = gnss_position_part(setup, name)
+        self._velocity = velocity_factor_model(setup) if gnss_velocity else None
+        radar = setup.sensors.get("radar")
+        #: per-radar mode (traffic): the radars' estimated poses and in-view sets
+        self.fields = (RadarFields(radar, chi2.ppf(gate_probability, df=2), view_confidence)
+                       if isinstance(radar, InfrastructureRadar) and not sees_every_vehicle(setup) else None)
+        self._gate_1 = chi2.ppf(gate_probability, df=1)
+        self.radar_skipped: dict[int, str] = {}   # of the last frame: radar id → why
+        self._v = np.zeros((0, 2))           # each present vehicle's GNSS velocity (NaN: none)
+        self._v_cov = np.zeros((0, 2, 2))
 
     def add_frame(self, frame: Frame) -> FrameFactors:
         """Append the variables and factors of `frame` (see the module docstring)."""
@@ -166,18 +214,19 @@ class GraphData:
         delta = np.full((n, 2), np.nan)
         once = count[at] == 1
         delta[at[once]] = odometry.z[rows[once]] if rows.size else 0.0
-        gap = np.flatnonzero(cont & (count == 0))
-        b_a = np.concatenate([prev[at], prev[gap]])
-        b_b = np.concatenate([new_vars[at], new_vars[gap]])
-        b_z = np.concatenate([odometry.z[rows] if rows.size else np.zeros((0, 2)),
+        v_at, v_z, v_cov = self._velocity_factors(ids, cont, frame.batches.get("gnss"))
+        gap = np.flatnonzero(cont & (count == 0) & ~np.isin(np.arange(n), v_at))
+        b_a = np.concatenate([prev[at], prev[v_at], prev[gap]])
+        b_b = np.concatenate([new_vars[at], new_vars[v_at], new_vars[gap]])
+        b_z = np.concatenate([odometry.z[rows] if rows.size else np.zeros((0, 2)), v_z,
                               np.zeros((gap.size, 2))])
-        b_cov = np.concatenate([odometry.cov[rows] if rows.size else np.zeros((0, 2, 2)),
+        b_cov = np.concatenate([odometry.cov[rows] if rows.size else np.zeros((0, 2, 2)), v_cov,
                                 np.broadcast_to(self.gap_variance * _I2, (gap.size, 2, 2))])
         # topology (eqs. 8 / 11–16): left out unless a radar reports exactly n rows
         t_s, t_sigma = [], []
         radar = frame.batches.get("radar")
         usable = n >= 2 and (self.kind == OLD or bool(cont.all() and (count == 1).all()))
-        if usable and radar is not None and len(radar):
+        if self.fields is None and usable and radar is not None and len(radar):
             for sensor in np.unique(radar.sensor):
                 rows = radar.sensor == sensor
                 if rows.sum() != n:
@@ -196,14 +245,124 @@ class GraphData:
             np.concatenate(u_z) if u_z else np.zeros((0, 2)),
             np.concatenate(u_cov) if u_cov else np.zeros((0, 2, 2)),
             b_a, b_b, b_z, b_cov,
-            np.repeat(new_vars[None], K, 0),
-            np.repeat((prev if self.kind == NEW else new_vars)[None], K, 0),
-            np.repeat(np.nan_to_num(delta)[None], K, 0),
-            np.array(t_s, float), np.array(t_sigma, float),
+            (new_vars,) * K, ((prev if self.kind == NEW else new_vars),) * K,
+            (np.nan_to_num(delta),) * K, np.array(t_s, float), np.array(t_sigma, float),
         )
         self.frames.append(factors)
         self._ids, self._vars = ids, new_vars
         return factors
+
+    def add_radar_topology(self, frame: Frame, mean: FloatArray, cov: FloatArray) -> FrameFactors:
+        """Per-radar mode (traffic, module docstring): add to the last frame one topology
+        factor per radar over the vehicles it sees, found from the estimator's beliefs of
+        the frame's vehicles, mean (n, 2) and cov (n, 2, 2) (never the truth); the frame's
+        factors. Radars left out and why: `radar_skipped`. No-op in the papers' setup."""
+        f = self.frames[-1]
+        self.radar_skipped = {}
+        radar = frame.batches.get("radar")
+        if self.fields is None or radar is None or not len(radar) or f.vars.size == 0:
+            return f
+        var = np.einsum("nii->n", cov) / 2
+        odometry_cov = None
+        if self.odometry_noise:
+            odometry = frame.batches.get("odometry")
+            odometry_cov = odometry.cov if odometry is not None and len(odometry) else None
+        chained = (f.previous >= 0) & np.isfinite(f.delta).all(axis=1)
+        current, previous, deltas, t_s, t_sigma = [], [], [], [], []
+        for sensor in np.unique(radar.sensor).tolist():
+            rows = radar.sensor == sensor
+            q = radar.z[rows]
+            seen, reason = self.fields.in_view(sensor, q, mean, var)
+            if seen is not None and seen.size < 2:
+                seen, reason = None, "fewer than two vehicles in view (the topology is then 0)"
+            if seen is not None and self.kind == NEW and not chained[seen].all():
+                seen, reason = None, "a vehicle it sees has no single odometry row (new factor)"
+            if seen is not None:
+                s, s_var = radar_topology(q, radar.cov[rows])
+                radar_var = float(np.einsum("mii->m", radar.cov[rows]).mean() / 2)
+                if topology_nis(mean[seen], var[seen], s, radar_var) > self._gate_1:
+                    seen, reason = None, "its topology lies outside the gate of the beliefs"
+            if seen is None:
+                self.radar_skipped[sensor] = reason
+                continue
+            if odometry_cov is not None:
+                s_var += odometry_topology_variance(q, odometry_cov)
+            if s_var <= 0:
+                continue
+            current.append(f.vars[seen])
+            previous.append(f.previous[seen] if self.kind == NEW else f.vars[seen])
+            deltas.append(np.nan_to_num(f.delta[seen]))
+            t_s.append(s)
+            t_sigma.append(np.sqrt(s_var))
+        if not t_s:
+            return f
+        self.n_topology += len(t_s)
+        f = dataclasses.replace(
+            f, topology_current=f.topology_current + tuple(current),
+            topology_previous=f.topology_previous + tuple(previous),
+            topology_delta=f.topology_delta + tuple(deltas),
+            topology_s=np.concatenate([f.topology_s, t_s]),
+            topology_sigma=np.concatenate([f.topology_sigma, t_sigma]))
+        self.frames[-1] = f
+        return f
+
+    def _velocity_factors(self, ids: IntArray, cont: npt.NDArray[np.bool_], gnss: Batch | None
+                          ) -> tuple[IntArray, FloatArray, FloatArray]:
+        """The GNSS velocity factors of this frame (module docstring): the vehicles (positions
+        in `ids`) that get one, their displacements (m, 2) and covariances (m, 2, 2)."""
+        n = ids.size
+        v, v_cov = np.full((n, 2), np.nan), np.zeros((n, 2, 2))
+        if self._velocity is not None:
+            part = self._velocity[0]
+            rows, at = _rows_of(ids, gnss)
+            once = np.bincount(at, minlength=n)[at] == 1
+            if once.any():  # rows with position-velocity cross terms would correlate the factors
+                assert gnss is not None
+                p_part = np.setdiff1d(np.arange(gnss.z.shape[1]), part)
+                once &= ~gnss.cov[rows][:, p_part[:, None], part[None, :]].any(axis=(1, 2))
+            if once.any():
+                assert gnss is not None
+                fixes = gnss.components(part)
+                v[at[once]], v_cov[at[once]] = fixes.z[rows[once]], fixes.cov[rows[once]]
+        before = np.full((n, 2), np.nan)
+        before_cov = np.zeros((n, 2, 2))
+        if cont.any() and self._v.size:
+            i = np.searchsorted(self._ids, ids[cont])
+            before[cont], before_cov[cont] = self._v[i], self._v_cov[i]
+        self._v, self._v_cov = v, v_cov
+        use = np.flatnonzero(np.isfinite(v).all(1) & np.isfinite(before).all(1))
+        if use.size == 0:
+            return use, np.zeros((0, 2)), np.zeros((0, 2, 2))
+        _, A, G, Q_c = self._velocity  # type: ignore[misc]
+        z = before[use] @ A.T + v[use] @ G.T
+        # each velocity row is in two factors: its information is split between them (×2)
+        cov = Q_c + 2.0 * (A @ before_cov[use] @ A.T + G @ v_cov[use] @ G.T)
+        return use, z, cov
+
+
+def velocity_factor_model(setup: Setup) -> tuple[IntArray, FloatArray, FloatArray, FloatArray] | None:
+    """What the GNSS velocity factors need (module docstring), or None where they do not apply:
+    the velocity components of the GNSS rows, A, G (2, 2) and the conditional Q_pp − G Q_vp.
+
+    None where the rows hold no velocity, the layout has none, the motion model's positions
+    do not integrate its velocities (F_pp = I, F_vp = 0) or its noise is state dependent.
+    """
+    layout, sensor = setup.vehicle_layout, setup.sensors.get("gnss")
+    if layout.velocity is None or sensor is None:
+        return None
+    cols = list(getattr(sensor, "state_indices", layout.position))
+    pos, vel = list(layout.position), list(layout.velocity)
+    if not set(vel) <= set(cols) or not set(pos) <= set(cols):
+        return None
+    F = setup.vehicle_motion.transition_matrix(setup.dt)
+    Q = setup.vehicle_motion.noise_covariance(setup.dt)
+    if Q.ndim != 2 or not (np.array_equal(F[np.ix_(pos, pos)], _I2) and not F[np.ix_(vel, pos)].any()):
+        return None
+    part = np.array([cols.index(c) for c in vel], dtype=np.int64)
+    Q_vv, Q_pv = Q[np.ix_(vel, vel)], Q[np.ix_(pos, vel)]
+    G = np.linalg.solve(Q_vv.T, Q_pv.T).T                                   # Q_pv Q_vv⁻¹
+    A = F[np.ix_(pos, vel)] - G @ F[np.ix_(vel, vel)]
+    return part, A, G, Q[np.ix_(pos, pos)] - G @ Q_pv.T
 
 
 @dataclass(frozen=True)
@@ -233,14 +392,15 @@ class GraphProblem:
         def cat(name: str) -> np.ndarray:
             return np.concatenate([getattr(f, name) for f in frames])
 
-        groups: dict[int, list[FrameFactors]] = {}
+        # factors grouped by how many vehicles they join, each group stacked (K_m, m)
+        groups: dict[int, list[tuple]] = {}
         for f in frames:
-            if f.topology_s.size:
-                groups.setdefault(f.vars.size, []).append(f)
-        topology = tuple(
-            tuple(np.concatenate([getattr(f, "topology_" + part) for f in group])
-                  for part in ("current", "previous", "delta", "s", "sigma"))
-            for group in groups.values())
+            for k in range(f.topology_s.size):
+                groups.setdefault(f.topology_current[k].size, []).append(
+                    (f.topology_current[k], f.topology_previous[k], f.topology_delta[k],
+                     f.topology_s[k], f.topology_sigma[k]))
+        topology = tuple(tuple(np.array(part) for part in zip(*group, strict=True))
+                         for group in groups.values())
         return cls(data.n_vars, cat("unary_var"), cat("unary_z"), whitener(cat("unary_cov")),
                    cat("between_a"), cat("between_b"), cat("between_z"),
                    whitener(cat("between_cov")), topology, data.kind, huber)  # type: ignore[arg-type]

@@ -47,7 +47,7 @@ Traffic: the per-radar mode
 with an unbounded, all-around field: it sees every vehicle) and otherwise runs
 `_step_per_radar` (`sumo-*`): the per-vehicle `gnss-kf` (identified GNSS rows used as
 identified, odometry by stochastic cloning), then eq. (17) per gate group of anonymous
-GPS rows and eq. (18) per radar over the vehicles it sees (module `traffic`), each
+GPS rows and eq. (18) per radar over the vehicles it sees (modules `traffic`, `road_radars`), each
 group updated by the filter's `_update_group` (unscented for `sme-ukf`, a Gaussian
 particle filter for `sme-pf`). With no radar rows (and identified GNSS) that is
 `gnss-kf` exactly. Eq. (18) corrects the means only: per-vehicle beliefs cannot hold
@@ -88,14 +88,14 @@ from cooploc.estimators.base import (
     gnss_position_part,
     position_fixes,
 )
+from cooploc.estimators.road_radars import RadarFields, sees_every_vehicle, topology_nis
 from cooploc.estimators.sme.pseudo_measurement import (
     PseudoMeasurement,
     complex_power_sums,
     power_sums,
     topology,
-    topology_moments,
 )
-from cooploc.estimators.sme.traffic import RadarFields, gate_groups
+from cooploc.estimators.sme.traffic import gate_groups
 from cooploc.gaussian import Gaussians, kf_update_relative
 from cooploc.params import Params, param
 from cooploc.sensors import InfrastructureRadar
@@ -159,9 +159,7 @@ class _SmeFilter:
         self._gate_1 = chi2.ppf(params.gate_probability, df=1)
         self._gnss_part = gnss_position_part(setup, self.name)
         radar = setup.sensors.get("radar")
-        paper = (radar is not None and len(setup.infrastructure_ids) <= 1
-                 and np.isinf(getattr(radar, "max_range", np.inf))
-                 and getattr(radar, "field_of_view", np.pi) >= np.pi)
+        paper = sees_every_vehicle(setup)
         self.per_radar = params.mode == "per-radar" or (params.mode == "auto" and not paper)
         if self.per_radar:
             from cooploc.estimators.gnss_kf import GnssKF  # the no-radar filter it reduces to
@@ -276,14 +274,6 @@ class _SmeFilter:
                                  np.ones(2) if gnss_var is None else gnss_var, radar_var / scale**2,
                                  y_gnss, None if y_radar is None else y_radar / scale**2, self.params.jitter)
 
-    def _topology_gate(self, p: FloatArray, var: FloatArray, T: float, radar_var: float) -> float:
-        """NIS of the measured T against its prediction from the beliefs (linearized, 1 dof)."""
-        n = p.shape[0]
-        mean_T, var_T = topology_moments(p, radar_var)
-        grad = 2.0 * n * (p - p.mean(axis=0))                               # ∇_{p_i} T
-        S = float(var_T + (grad**2).sum(-1) @ var)
-        return float((T - mean_T) ** 2 / S)
-
     def _seat_births(self, frame: Frame) -> int:
         """Vehicles that entered together at the previous step, moved to the rows their first
         odometry rows say are theirs; returns how many moved (module docstring, docs/sme.md).
@@ -394,7 +384,7 @@ class _SmeFilter:
                 if seen is not None:
                     T = float(topology(q))
                     radar_var = float(np.einsum("mii->m", radar.cov[rows]).mean() / 2)
-                    if self._topology_gate(p[seen], var[seen], T, radar_var) > self._gate_1:
+                    if topology_nis(p[seen], var[seen], T, radar_var) > self._gate_1:
                         seen, reason = None, "its topology lies outside the gate of the beliefs"
                 if seen is None:
                     info["radar_skipped"][int(sensor)] = reason
