@@ -50,7 +50,6 @@ when the pose is lost), tracking and the in-view test O(M N).
 from __future__ import annotations
 
 import numpy as np
-from scipy.special import ndtr
 
 from cooploc.geometry import fit_pose, rotation, to_local
 from cooploc.sensors import InfrastructureRadar
@@ -171,6 +170,8 @@ class RadarFields:
         local = to_local(pose, p)
         dist = np.hypot(local[:, 0], local[:, 1])
         sigma = np.sqrt(var + _POSE_VARIANCE)
+        from scipy.special import ndtr  # here, not at import: `import cooploc` stays light
+
         prob = ndtr((self.model.max_range - dist) / sigma)                   # inside the range
         if self.model.field_of_view < np.pi:                                # and the bearing
             bearing = np.abs(np.arctan2(local[:, 1], local[:, 0]))

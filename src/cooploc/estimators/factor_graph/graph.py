@@ -73,7 +73,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-from scipy.stats import chi2
 
 from cooploc.estimators.base import birth_beliefs, gnss_position_part, position_fixes
 from cooploc.estimators.factor_graph.factors import (
@@ -172,6 +171,8 @@ class GraphData:
         self._velocity = velocity_factor_model(setup) if gnss_velocity else None
         radar = setup.sensors.get("radar")
         #: per-radar mode (traffic): the radars' estimated poses and in-view sets
+        from scipy.stats import chi2  # here, not at import: `import cooploc` stays light
+
         self.fields = (RadarFields(radar, chi2.ppf(gate_probability, df=2), view_confidence)
                        if isinstance(radar, InfrastructureRadar) and not sees_every_vehicle(setup) else None)
         self._gate_1 = chi2.ppf(gate_probability, df=1)

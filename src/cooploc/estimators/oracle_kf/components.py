@@ -66,7 +66,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cooploc._matrix_kernels import congruence_blocks, mirror_lower
 from cooploc.estimators.base import birth_beliefs, checked_states
 from cooploc.estimators.oracle_kf.births import feature_births
 from cooploc.gaussian import Gaussians, block_diagonal, kf_predict, kf_update_nis, symmetrize
@@ -199,6 +198,8 @@ def _inverse_update(P: FloatArray, E: IntArray, J: FloatArray, nonzero: IntArray
     post = _spd_inverse_lower(info, overwrite=True)
     if post is None:
         return None
+    from cooploc._matrix_kernels import mirror_lower  # numba: loaded when first needed
+
     post = np.asfortranarray(post)
     mirror_lower(post)
     return post.T                                                       # symmetric: C order for free
@@ -333,6 +334,8 @@ class ComponentFilter:
     def _predict_component(self, c: Component, noise: tuple[FloatArray | None, FloatArray | None]) -> None:
         new_mean = c.mean.copy()
         cov = np.empty_like(c.cov)
+        from cooploc._matrix_kernels import congruence_blocks  # numba: loaded when first needed
+
         congruence_blocks(c.cov, c.start, self.dims[c.kind], self._F_blocks[c.kind], cov)   # F P Fᵀ
         for kind in (VEHICLE, FEATURE):
             entities, idx = c.of_kind(kind, self.dims)                                  # (n, d)

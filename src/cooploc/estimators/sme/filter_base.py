@@ -76,8 +76,6 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
-from scipy.stats import chi2
 
 from cooploc.association import unexplained_rows
 from cooploc.errors import EstimatorError
@@ -155,6 +153,8 @@ class _SmeFilter:
         if self.Q.ndim == 3:  # state-dependent noise: use its value at rest for the joint model
             self.Q = self.Q[0]
         self.ids: IntArray = np.zeros(0, np.int64)
+        from scipy.stats import chi2  # here, not at import: `import cooploc` stays light
+
         self._gate = chi2.ppf(params.gate_probability, df=2)
         self._gate_1 = chi2.ppf(params.gate_probability, df=1)
         self._gnss_part = gnss_position_part(setup, self.name)
@@ -306,6 +306,8 @@ class _SmeFilter:
         predicted = Gaussians(previous.mean @ self.F.T, self.F @ previous.cov @ self.F.T + self.Q)
         _, _, log_q = kf_update_relative(previous, predicted, self.F, odometry.z[row[vehicle]], self._H_odo,
                                          odometry.cov[row[vehicle]])
+        from scipy.optimize import linear_sum_assignment
+
         _, choice = linear_sum_assignment(-log_q.reshape(b, b))                 # seat of each vehicle
         if np.array_equal(choice, np.arange(b)):
             return 0
@@ -352,6 +354,8 @@ class _SmeFilter:
                 r_full = rows_full.z[:, None, :] - (mean[born] @ H.T)[None]
                 d2[:, born] = np.einsum("mni,mni->mn", r_full, np.linalg.solve(S, r_full[..., None])[..., 0])
             row_var = np.einsum("mii->m", gnss.cov) / 2
+            from scipy.stats import chi2
+
             gate = chi2.ppf(self.params.gate_probability, df=H.shape[0])
             for v, r in gate_groups(d2, gate, self.params.max_group):
                 if v.size == 0:

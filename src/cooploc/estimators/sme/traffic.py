@@ -35,8 +35,6 @@ Complexity: `gate_groups` O(M N) per step.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from cooploc.estimators.road_radars import RadarFields
 from cooploc.types import FloatArray, IntArray
@@ -54,6 +52,9 @@ def gate_groups(d2: FloatArray, gate: float, max_size: int | None = None) -> lis
     """
     M, N = d2.shape
     r, v = np.nonzero(d2 <= gate)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     graph = coo_matrix((np.ones(r.size), (r, M + v)), shape=(M + N, M + N))
     _, label = connected_components(graph, directed=False)
     groups = []
