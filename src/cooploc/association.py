@@ -62,7 +62,9 @@ __all__ = [
     "decide",
     "enumerate_associations",
     "exact_marginals",
+    "gated_pairs",
     "padded_groups",
+    "pair_components",
     "unexplained_rows",
 ]
 
@@ -362,3 +364,42 @@ def unexplained_rows(cost: FloatArray, n: int) -> IntArray:
         nearest = cost.min(axis=1)
     candidates = np.flatnonzero(free) if free.sum() >= n else np.arange(M)
     return candidates[np.argsort(-nearest[candidates], kind="stable")[:n]]
+
+
+def gated_pairs(means: FloatArray, covs: FloatArray, owners: IntArray, gate: float,
+                position: tuple[int, ...] = (0, 1), *, inclusive: bool = False
+                ) -> tuple[IntArray, IntArray, FloatArray]:
+    """(i, j, d²), sorted by (i, j), i < j, of the pairs of Gaussian points (means (n, d),
+    covs (n, d, d)) from different `owners` within the gate: d² = Δᵀ (C_i + C_j)⁻¹ Δ < gate
+    (≤ with `inclusive`).
+
+    Found with a k-d tree over the `position` components, not among all n² pairs: the
+    Mahalanobis distance of a part is at most that of the whole, so d² ≥ ‖Δp‖² /
+    λ_max((C_i + C_j)_pp), and λ_max of a sum is at most 2 max λ_max(C_pp); only pairs
+    within √(gate · 2 max λ_max(C_pp)) can pass, the same pairs as the full triangle gives.
+    """
+    from cooploc.geometry import links_within
+
+    empty = np.zeros(0, dtype=np.int64)
+    if owners.size < 2:
+        return empty, empty, np.zeros(0)
+    p = list(position)
+    spread = np.linalg.eigvalsh(covs[:, p][:, :, p])[:, -1].max()
+    i, j = links_within(np.arange(owners.size), means[:, p], np.sqrt(gate * 2.0 * spread) * (1.0 + 1e-9)).T
+    ok = owners[i] != owners[j]
+    i, j = i[ok], j[ok]
+    diff = means[i] - means[j]
+    d2 = np.einsum("pi,pi->p", diff, np.linalg.solve(covs[i] + covs[j], diff[..., None])[..., 0])
+    keep = d2 <= gate if inclusive else d2 < gate
+    return i[keep], j[keep], d2[keep]
+
+
+def pair_components(n: int, i: IntArray, j: IntArray) -> IntArray:
+    """(n,) label of the connected component of each of n nodes joined by the pairs (i, j)."""
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    graph = coo_matrix((np.ones(i.size), (i, j)), shape=(n, n))
+    return connected_components(graph, directed=False)[1].astype(np.int64)

@@ -62,14 +62,15 @@ from cooploc.association import (
     AssociationMarginals,
     association_weights,
     bp_association,
+    gated_pairs,
     padded_groups,
+    pair_components,
 )
 from cooploc.consensus import flood
 from cooploc.errors import ConfigError
 from cooploc.estimators.icp.gaussian_bp import ICP, ICPParams
 from cooploc.estimators.icp.registration import register_vehicles
 from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf
-from cooploc.geometry import links_within
 from cooploc.network import Network
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
@@ -287,12 +288,8 @@ def _names_known(have: np.ndarray, owner: IntArray, ids: IntArray, agents: IntAr
     The same names as grouping each agent's set, for a cost that follows the candidates
     and not agents × candidates.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    C = ids.size
-    i, j, d2 = _gated_pairs(agents, g, P, position)
-    _, component = connected_components(coo_matrix((np.ones(i.size), (i, j)), shape=(C, C)), directed=False)
+    i, j, d2 = gated_pairs(g, P, agents, BIRTH_GATE, position)
+    component = pair_components(ids.size, i, j)
     size = np.bincount(component)
     out = _greedy_groups(ids, agents, i, j, d2)             # every candidate known
     patterns, which = np.unique(have, axis=0, return_inverse=True)
@@ -312,25 +309,6 @@ def _names_known(have: np.ndarray, owner: IntArray, ids: IntArray, agents: IntAr
             its = mine[component[mine] == part]
             out[its] = regrouped[key][np.searchsorted(subset, its)]
     return out
-
-
-def _gated_pairs(agents: IntArray, g: FloatArray, P: FloatArray, position: tuple[int, ...]
-                 ) -> tuple[IntArray, IntArray, FloatArray]:
-    """(i, j, d²) of the candidate pairs from different vehicles within the gate, sorted by
-    (i, j), i < j: d² = Δgᵀ (P_i + P_j)⁻¹ Δg < `BIRTH_GATE`. Only pairs whose `position`
-    components lie within √(gate · 2 max λ_max(P)) can pass (d² ≥ ‖Δp‖² / λ_max(P_i + P_j)),
-    so they are found with a k-d tree, not among all C² pairs."""
-    empty = np.zeros(0, dtype=np.int64)
-    if agents.size < 2:
-        return empty, empty, np.zeros(0)
-    reach = np.sqrt(BIRTH_GATE * 2.0 * np.linalg.eigvalsh(P)[:, -1].max()) * (1.0 + 1e-9)
-    i, j = links_within(np.arange(agents.size), g[:, list(position)], reach).T
-    ok = agents[i] != agents[j]
-    i, j = i[ok], j[ok]
-    diff = g[i] - g[j]
-    d2 = np.einsum("pi,pi->p", diff, np.linalg.solve(P[i] + P[j], diff[..., None])[..., 0])
-    keep = d2 < BIRTH_GATE
-    return i[keep], j[keep], d2[keep]
 
 
 def _greedy_groups(ids: IntArray, agents: IntArray, i: IntArray, j: IntArray, d2: FloatArray) -> IntArray:
@@ -362,7 +340,7 @@ def _group_births(ids: IntArray, agents: IntArray, g: FloatArray, P: FloatArray,
     """Greedy gated grouping of first detections; returns the group id of each candidate.
 
     Pairs from different vehicles whose gap d² = Δgᵀ (P_i + P_j)⁻¹ Δg is within
-    `BIRTH_GATE` are taken closest first (`_gated_pairs`); a pair joins two groups
-    unless they share a vehicle (one row per vehicle and feature).
+    `BIRTH_GATE` are taken closest first (`association.gated_pairs`); a pair joins two
+    groups unless they share a vehicle (one row per vehicle and feature).
     """
-    return _greedy_groups(ids, agents, *_gated_pairs(agents, g, P, position))
+    return _greedy_groups(ids, agents, *gated_pairs(g, P, agents, BIRTH_GATE, position))

@@ -332,10 +332,10 @@ class ComponentFilter:
         return np.split(Q, np.cumsum([m.shape[0] for m in means])[:-1])
 
     def _predict_component(self, c: Component, noise: tuple[FloatArray | None, FloatArray | None]) -> None:
-        new_mean = c.mean.copy()
-        cov = np.empty_like(c.cov)
         from cooploc._matrix_kernels import congruence_blocks  # numba: loaded when first needed
 
+        new_mean = c.mean.copy()
+        cov = np.empty_like(c.cov)
         congruence_blocks(c.cov, c.start, self.dims[c.kind], self._F_blocks[c.kind], cov)   # F P Fᵀ
         for kind in (VEHICLE, FEATURE):
             entities, idx = c.of_kind(kind, self.dims)                                  # (n, d)
@@ -560,9 +560,8 @@ class ComponentFilter:
     def _update_component(self, c: Component, J: FloatArray, J_nonzero: IntArray, a: FloatArray,
                           E: IntArray) -> float | None:
         """The information-form update of one component (module docstring, step 5), J given
-        with the flat indices of its nonzeros; returns
-        (G a)ᵀ b, what the NIS is below Σ νᵀR⁻¹ν, or None (`c` untouched) where round-off
-        ate the posterior."""
+        with the flat indices of its nonzeros; returns (G a)ᵀ b, what the NIS is below
+        Σ νᵀR⁻¹ν, or None (`c` untouched) where round-off ate the posterior."""
         P = c.cov
         r = E.size
         if 2 * r > P.shape[0]:  # most coordinates observed: two inversions are cheaper

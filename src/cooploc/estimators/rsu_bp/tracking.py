@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from cooploc.association import bp_association, padded_groups
+from cooploc.association import bp_association, gated_pairs, padded_groups, pair_components
 from cooploc.estimators.rsu_bp import existence as ex
 from cooploc.estimators.rsu_bp.vehicles import (
     VehicleMessages,
@@ -410,25 +410,8 @@ class FeatureTracker:
 
     def _same_feature(self, y: FloatArray, C: FloatArray, s: IntArray) -> IntArray:
         """Group births of one step: rows of different vehicles inside each other's gate."""
-        n = y.shape[0]
-        if n < 2:
-            return np.zeros(n, dtype=np.int64)
-        from scipy.sparse import coo_matrix
-        from scipy.sparse.csgraph import connected_components
-        from scipy.spatial import cKDTree
-        xy = self.xy
-        spread = np.sqrt(self.gate * 2.0 * np.trace(C[:, xy][:, :, xy], axis1=1, axis2=2).max())
-        pairs = cKDTree(y[:, xy]).query_pairs(spread, output_type="ndarray")
-        if pairs.size:
-            a, b = pairs[:, 0], pairs[:, 1]
-            resid = y[a] - y[b]
-            d2 = np.einsum("pi,pi->p", resid, np.linalg.solve(C[a] + C[b], resid[..., None])[..., 0])
-            ok = (d2 <= self.gate) & (s[a] != s[b])
-            a, b = a[ok], b[ok]
-        else:
-            a = b = np.zeros(0, dtype=np.int64)
-        graph = coo_matrix((np.ones(a.size), (a, b)), shape=(n, n))
-        return connected_components(graph, directed=False)[1].astype(np.int64)
+        a, b, _ = gated_pairs(y, C, s, self.gate, tuple(self.xy), inclusive=True)
+        return pair_components(y.shape[0], a, b)
 
     def _prune(self) -> None:
         f = self.features

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cooploc.association import pair_components
 from cooploc.estimators.road_radars import RadarFields
 from cooploc.types import FloatArray, IntArray
 
@@ -52,11 +53,7 @@ def gate_groups(d2: FloatArray, gate: float, max_size: int | None = None) -> lis
     """
     M, N = d2.shape
     r, v = np.nonzero(d2 <= gate)
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    graph = coo_matrix((np.ones(r.size), (r, M + v)), shape=(M + N, M + N))
-    _, label = connected_components(graph, directed=False)
+    label = pair_components(M + N, r, M + v)                  # rows 0…M−1, then the vehicles
     groups = []
     for g in np.unique(label):
         rows, vehicles = np.flatnonzero(label[:M] == g), np.flatnonzero(label[M:] == g)
