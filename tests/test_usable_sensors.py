@@ -78,3 +78,24 @@ def test_gnss_rows_the_baseline_cannot_use_are_counted_not_hidden():
                       {**frames[1].batches, "gnss": Batch(gnss.z, gnss.cov, subject, subject)})
     est = GnssKF(recording.setup, GnssKF.Params(), np.random.default_rng(0))
     assert [est.step(f).info["gnss_rows_unused"] for f in frames] == [0, 1, 0]
+
+
+@pytest.mark.parametrize("sensor_model, use_identities, unused", [
+    ("anonymous", True, ("odometry", "radar")),      # odometry names a vehicle no PHD component has
+    ("identified", True, ("radar",)),                 # one PHD per vehicle: its odometry is fused
+    ("identified", False, ("odometry", "radar")),     # one PHD of all rows: nowhere to put it
+])
+def test_gm_phd_names_odometry_it_cannot_place(zhang, sensor_model, use_identities, unused):
+    from dataclasses import replace
+
+    from cooploc.sensors import GnssPosition, Odometry
+    gnss = zhang.setup.sensors["gnss"]
+    if sensor_model == "identified":
+        gnss = GnssPosition(default_cov=gnss.default_cov)
+    setup = replace(zhang.setup, sensors={**zhang.setup.sensors, "gnss": gnss,
+                                          "odometry": Odometry(default_cov=np.eye(2))})
+    cls = estimators()["gm-phd"]
+    built = make_estimator("gm-phd", setup, cls.Params(use_identities=use_identities),
+                           np.random.default_rng(0), zhang.truth)
+    assert unused_kinds(cls, setup, built) == unused
+    assert unused_kinds(cls, setup) == ("radar",)      # the class alone cannot tell

@@ -315,7 +315,7 @@ def run_one(config: ExperimentConfig, run: int, keep_estimates: bool | None = No
     for spec in config.estimators:
         estimator = make_estimator(spec.name, recording.setup, spec.params,
                                    estimator_rngs[spec.name], recording.truth)
-        unused[spec.name] = unused_kinds(get_estimator(spec.name), recording.setup) or ()
+        unused[spec.name] = unused_kinds(get_estimator(spec.name), recording.setup, estimator) or ()
         timer = StepTimer()
         try:
             estimates = estimate(estimator, recording, timer=timer)

@@ -34,7 +34,10 @@ read it from — the model says what the rows mean, e.g. ``"gnss-position"`` row
 their vehicle, ``"anonymous-position"`` rows do not. `construct` refuses an estimator
 that can use none of the kinds a scenario offers (it would return its prior and call
 it an estimate), and `unused_kinds` names the kinds it accepts but leaves aside (the
-run's summary and report say so). A class without `usable_sensors` (a plug-in written
+run's summary and report say so). Where that depends on more than the sensor model (a
+kind usable only together with another, or only in some parameter setting), the built
+estimator says so itself: an attribute `left_aside` (a tuple of kinds) adds to what
+`usable_sensors` rules out. A class without `usable_sensors` (a plug-in written
 before it existed) is taken to use whatever it is given.
 
 The bound of an estimator's own sensors. `bound` (optional) names the registered
@@ -326,17 +329,19 @@ def _offered(setup: Setup) -> str:
     return ", ".join(f"{kind} ({getattr(model, 'name', '?')})" for kind, model in kinds) or "none"
 
 
-def unused_kinds(cls: type, setup: Setup) -> tuple[str, ...] | None:
+def unused_kinds(cls: type, setup: Setup, estimator: Any = None) -> tuple[str, ...] | None:
     """The measurement kinds of `setup` that estimator class `cls` leaves aside (sorted).
 
     A kind is used when `cls.usable_sensors` lists it with the setup's sensor model for
-    it. None when the class does not declare `usable_sensors`.
+    it, and the built `estimator` (when given) does not name it in its `left_aside`.
+    None when the class does not declare `usable_sensors`.
     """
     usable = getattr(cls, "usable_sensors", None)
     if usable is None:
         return None
+    left_aside = set(getattr(estimator, "left_aside", ()))
     return tuple(kind for kind, model in sorted(setup.sensors.items())
-                 if getattr(model, "name", None) not in usable.get(kind, ()))
+                 if getattr(model, "name", None) not in usable.get(kind, ()) or kind in left_aside)
 
 
 def construct(cls: type, setup: Setup, params: Params | None, rng: np.random.Generator,

@@ -273,6 +273,8 @@ class GMPHD:
         self.labelled = params.use_identities and getattr(sensor, "name", "") == "gnss-position"
         odometry = setup.sensors.get("odometry")
         self.H_odo = None if odometry is None else odometry.observation_matrix(dx)
+        # odometry names its vehicle: it has nowhere to go when the PHD is not per vehicle
+        self.left_aside: tuple[str, ...] = ("odometry",) if odometry is not None and not self.labelled else ()
         self.mixture: Mixture | None = None
         self._last_rows: tuple[FloatArray, FloatArray] | None = None
         self._present: IntArray = np.zeros(0, dtype=np.int64)   # the vehicles of the last step
