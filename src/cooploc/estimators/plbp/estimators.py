@@ -54,7 +54,7 @@ import numpy as np
 
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import VehicleBeliefs, checked_states
-from cooploc.estimators.plbp.heading import with_velocity_heading
+from cooploc.estimators.plbp.heading import standing, with_velocity_heading
 from cooploc.estimators.plbp.links import link_factors
 from cooploc.estimators.plbp.solve import plbp_solve
 from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize, to_information
@@ -153,13 +153,15 @@ class PLBP:
         beliefs = self._predict(self.vehicles.beliefs, ~born)
         self._started = True
         beliefs = self._fix(beliefs, frame.batches.get("gnss"), self.setup.sensors.get("gnss"))
+        aoa = frame.batch("aoa", 1)
         if self._velocity is not None:
+            aoa = self._moving_receivers(aoa, beliefs, frame.batches.get("anchor"))
             beliefs = with_velocity_heading(beliefs, self._velocity, p.heading_slip_std**2,
                                             method=p.sigma_points, central_weight=p.central_weight)
         beliefs = self._fix(beliefs, frame.batches.get("anchor"), self.setup.sensors.get("anchor"))
         dx = self.setup.vehicle_layout.dim
         own = Gaussians(beliefs.mean[:, :dx], beliefs.cov[:, :dx, :dx])   # the layout's marginal
-        links = link_factors(frame.batch("aoa", 1), self.vehicles.ids)
+        links = link_factors(aoa, self.vehicles.ids)
         posterior, iterates = plbp_solve(
             beliefs, links, self.sensor, linearization_iterations=p.linearization_iterations,
             bp_iterations=p.bp_iterations, posterior=self.posterior, method=p.sigma_points,
@@ -174,6 +176,24 @@ class PLBP:
             mean, cov = mean[:, :dx], cov[:, :dx, :dx]
         self.vehicles.beliefs = Gaussians(mean, cov) if p.tracking == "posterior" else own
         return Estimate(checked_states(self.name, "vehicle", self.vehicles.ids, mean, cov), info=info)
+
+    def _moving_receivers(self, aoa: Batch, beliefs: Gaussians, anchor: Batch | None) -> Batch:
+        """The AoA rows whose receiver's heading is known: it moves, or it is an anchor.
+
+        A bearing is relative to the receiver's heading. A vehicle whose velocity belief does
+        not exclude v = 0 may stand (`plbp.heading.standing`), and a standing vehicle's
+        heading is not the direction of a velocity: it is unknown, uniform over the circle,
+        and a bearing minus a uniform angle is uniform whatever the positions. Such a row
+        carries no information and is left out (the exact marginal over the heading); the
+        rows others take of that vehicle stay. An anchor's heading comes with its fix.
+        """
+        still = standing(beliefs, self._velocity)
+        if anchor is not None:
+            still &= ~np.isin(self.vehicles.ids, anchor.subject)
+        keep = ~np.isin(aoa.sensor, self.vehicles.ids[still])
+        if keep.all():
+            return aoa
+        return Batch(aoa.z[keep], aoa.cov[keep], aoa.sensor[keep], aoa.subject[keep])
 
     def _predict(self, beliefs: Gaussians, moving: np.ndarray) -> Gaussians:
         """Prediction with the motion model of every vehicle that was already there."""

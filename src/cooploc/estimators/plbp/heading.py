@@ -34,7 +34,21 @@ import numpy as np
 from cooploc.gaussian import Gaussians, statistical_linear_regression, symmetrize
 from cooploc.types import FloatArray
 
-__all__ = ["with_velocity_heading"]
+__all__ = ["STANDING_CHI2", "standing", "with_velocity_heading"]
+
+# the test of v = 0 at level 0.01: the χ²₂ quantile 0.99, −2 ln 0.01 (= scipy.stats.chi2.ppf(0.99, 2))
+STANDING_CHI2 = -2.0 * np.log(0.01)
+
+
+def standing(beliefs: Gaussians, velocity: tuple[int, ...]) -> np.ndarray:
+    """(n,) bool: the velocity belief does not exclude v = 0 (v̂ᵀ P_v⁻¹ v̂ < χ²₂,0.99).
+
+    Such a vehicle may stand, and a standing vehicle's heading is not the direction of a
+    velocity: it is unknown.
+    """
+    v = beliefs.mean[:, list(velocity)]
+    Pv = beliefs.cov[:, list(velocity)][:, :, list(velocity)]
+    return np.einsum("ni,ni->n", v, np.linalg.solve(Pv, v[..., None])[..., 0]) < STANDING_CHI2
 
 
 def with_velocity_heading(beliefs: Gaussians, velocity: tuple[int, ...], slip_variance: float, *,
