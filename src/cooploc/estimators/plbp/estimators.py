@@ -18,12 +18,15 @@ Choices the paper leaves open:
   of this step's solve. Vehicles that enter start from `Setup.vehicle_prior` or their
   first fix (`estimators.base.birth_beliefs`). Gaussian BP treats the priors of a step
   as independent, but a carried posterior is correlated with its neighbours' through
-  the AoA of earlier steps, so the same angles are counted again (on sumo-berlin-tlr the
-  position NEES is 1.4× `gnss-kf`'s). `tracking="own-fixes"` carries each vehicle's
-  filter of its own fixes instead and solves the AoA on it as a snapshot every step:
-  consistent as the GNSS filter, but it forgets the AoA of earlier steps. The default
-  stays "posterior": it is the more accurate on both SUMO cities and on
-  `aoa-grid-tracking` (docs/plbp.md, "On a city").
+  the AoA of earlier steps: a link's information lands in the beliefs of both its ends,
+  and when they are linked again BP adds one end's carried belief to the other's, so a
+  fully carried link is counted twice. The default `tracking="tempered"` carries the
+  step's prior times half of what its links added (`tempered`, a fractional weight of
+  the link factors), which counts it once; `"posterior"` carries the whole posterior
+  (position NEES 1.4× `gnss-kf`'s on sumo-berlin-tlr, tempered 1.2×), and `"own-fixes"`
+  each vehicle's filter of its own fixes, on which the AoA is solved as a snapshot every
+  step (consistent as the GNSS filter, but it forgets the AoA of earlier steps).
+  Measured in docs/plbp.md, "On a city".
 - AoA rows naming a vehicle that is not present are ignored.
 - Output headings are wrapped to [−π, π).
 - Anchors (beyond the snapshot's priors): a scenario may give its anchors a fix of
@@ -71,7 +74,7 @@ from cooploc.registry import register_estimator
 from cooploc.sensors import AngleOfArrival
 from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup
 
-__all__ = ["PLBP", "PLBPParams", "PriorLBP", "PriorLBPParams"]
+__all__ = ["LINK_ENDS", "PLBP", "PLBPParams", "PriorLBP", "PriorLBPParams", "tempered"]
 
 
 @dataclass(frozen=True)
@@ -86,13 +89,15 @@ class PLBPParams(Params):
     central_weight : w₀ of the unscented points.
     heading_slip_std : σ_s (rad), spread of the heading about the velocity direction, where
         the heading comes from the velocity (a layout without a heading; `plbp.heading`).
-    tracking : what a step's prior is. ``"posterior"`` (the default; the more accurate on
-        `aoa-grid-tracking` and the SUMO cities, docs/plbp.md): the previous step's
-        posterior, predicted, updated with the step's own fixes.
-        ``"own-fixes"``: each vehicle's own filter of its fixes (GNSS, and an anchor's
-        fix), predicted and updated the same way; the AoA solve runs on it every step and
-        its posterior is reported but not carried on, so the AoA of one step is never
-        counted again at a later one (module docstring).
+    tracking : what a step carries on to the next one, where it is predicted and updated
+        with that step's own fixes to become its prior. ``"tempered"`` (the default): the
+        step's prior times half of the information its links added (`tempered`): a link's
+        information lands in both its ends, so carrying all of it at each end counts it
+        twice when they are linked again. ``"posterior"``: the step's posterior (until
+        issue 19 the default). ``"own-fixes"``: each vehicle's own filter of its fixes
+        (GNSS, and an anchor's fix); the AoA solve runs on it every step and its posterior
+        is reported but not carried on, so the AoA of one step is never counted again.
+        Measured: docs/plbp.md, "On a city".
     """
 
     linearization_iterations: int = param(5, ge=1)
@@ -100,7 +105,7 @@ class PLBPParams(Params):
     sigma_points: Literal["unscented", "cubature"] = "unscented"
     central_weight: float = param(1.0 / 3.0, ge=0, lt=1)
     heading_slip_std: float = param(0.01, gt=0, le=np.pi)
-    tracking: str = param("posterior", choices=("posterior", "own-fixes"))
+    tracking: str = param("tempered", choices=("tempered", "posterior", "own-fixes"))
 
 
 @dataclass(frozen=True)
@@ -182,7 +187,12 @@ class PLBP:
         if self._velocity is not None:   # marginalise the heading out again
             info["heading"] = mean[:, self._heading]
             mean, cov = mean[:, :dx], cov[:, :dx, :dx]
-        self.vehicles.beliefs = Gaussians(mean, cov) if p.tracking == "posterior" else own
+        if p.tracking == "tempered":
+            carried = tempered(beliefs, posterior, LINK_ENDS)
+            carried.mean[:, self._heading] = wrap_angle(carried.mean[:, self._heading])
+            self.vehicles.beliefs = Gaussians(carried.mean[:, :dx], carried.cov[:, :dx, :dx])
+        else:
+            self.vehicles.beliefs = Gaussians(mean, cov) if p.tracking == "posterior" else own
         return Estimate(checked_states(self.name, "vehicle", self.vehicles.ids, mean, cov), info=info)
 
     def _moving_receivers(self, aoa: Batch, beliefs: Gaussians, anchor: Batch | None) -> Batch:
@@ -256,6 +266,28 @@ class PriorLBP(PLBP):
     summary: ClassVar[str] = "AoA cooperative position + heading, Gaussian BP linearized at the priors"
     Params: ClassVar[type[Params]] = PriorLBPParams
     posterior: ClassVar[bool] = False
+
+
+# the beliefs a link factor's information lands in: its two ends
+LINK_ENDS = 2
+
+
+def tempered(prior: Gaussians, posterior: Gaussians, ends: int = LINK_ENDS) -> Gaussians:
+    """The prior times the step's link information to the power 1/`ends` (information form).
+
+    Λ = Λ₀ + (Λ⁺ − Λ₀) / ends,  η = η₀ + (η⁺ − η₀) / ends,
+
+    with (Λ₀, η₀) the step's prior and (Λ⁺, η⁺) its posterior. The information of a link
+    lands in the beliefs of both its ends; when a step's posteriors are carried on as the
+    next priors and the two vehicles are linked again, Gaussian BP adds one end's carried
+    belief to the other's through the new link, so a fully carried link is counted twice.
+    Carrying 1/ends of it at each end counts it once (a fractional / power-EP weight of
+    the link factor: Wiegerinck & Heskes 2003; Minka 2004). Vehicles in no link keep their
+    prior. Headings are not wrapped here.
+    """
+    Lam0, eta0 = to_information(prior)
+    Lam1, eta1 = to_information(posterior)
+    return from_information(symmetrize(Lam0 + (Lam1 - Lam0) / ends), eta0 + (eta1 - eta0) / ends)
 
 
 def _scatter(index: IntArray, values: FloatArray, n: int) -> FloatArray:
