@@ -9,7 +9,9 @@ Oracles and properties:
   handled. (A half turn maps every sigma-point set onto itself; other angles do not.)
 - A vehicle with no link keeps its prior exactly; a frame with no AoA changes nothing.
 - Tracking: a fix whose heading is on the other side of ±π pulls the belief across
-  the cut, not through 0.
+  the cut, not through 0. What is carried on (`tracking="tempered"`, the default) is the
+  step's prior times half of its links' information, computed here from the own-fixes
+  form's prior and the reported posterior with explicit inverses.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import pytest
 
 from cooploc.errors import ConfigError
 from cooploc.estimators import make_estimator
-from cooploc.estimators.plbp import PLBPParams, gaussian_bp, iteration_errors, link_factors
+from cooploc.estimators.plbp import PLBPParams, PriorLBPParams, gaussian_bp, iteration_errors, link_factors
 from cooploc.estimators.plbp._kernels import aoa_joint_slr
 from cooploc.estimators.plbp.linearization import _linearize_reference
 from cooploc.gaussian import Gaussians
@@ -230,6 +232,43 @@ def test_tracking_accumulates_information(seed: int) -> None:
     # posterior carries the AoA information on: a few steps in, the position RMSE is below
     # the snapshot's: the ratio is 0.49–0.81 over 30 seeds (median 0.62)
     assert np.mean([rmse(k) for k in (3, 4, 5, 6, 7)]) < 0.95 * rmse(0)
+
+
+@pytest.mark.parametrize("name", ["plbp", "prior-lbp"])
+def test_the_carried_belief_holds_half_of_the_links_information(name: str, seed: int) -> None:
+    # tracking="tempered" (the default): what goes on to the next step is the step's prior
+    # times its links' information to the power 1/2, in information form. The step's prior
+    # is what the own-fixes form carries; its posterior is the reported estimate.
+    preset = get_preset("aoa-grid-tracking")
+    rec = preset.generate(np.random.default_rng([seed, 8]), preset.params.with_overrides({"n_steps": 2}))
+    default = make_estimator(name, rec.setup, None, np.random.default_rng(0))
+    params = (PLBPParams if name == "plbp" else PriorLBPParams)(tracking="own-fixes")
+    own = make_estimator(name, rec.setup, params, np.random.default_rng(0))
+    posterior = default.step(rec.frames[0]).vehicles
+    own.step(rec.frames[0])
+    prior = own.vehicles.beliefs
+    mean = posterior.mean.copy()               # the heading back on the prior's branch
+    mean[:, 2] = prior.mean[:, 2] + wrap_angle(mean[:, 2] - prior.mean[:, 2])
+    Lam0, Lam1 = np.linalg.inv(prior.cov), np.linalg.inv(posterior.cov)
+    eta0 = (Lam0 @ prior.mean[..., None])[..., 0]
+    eta1 = (Lam1 @ mean[..., None])[..., 0]
+    Lam = Lam0 + 0.5 * (Lam1 - Lam0)
+    expected_mean = np.linalg.solve(Lam, (eta0 + 0.5 * (eta1 - eta0))[..., None])[..., 0]
+    carried = default.vehicles.beliefs
+    linked = np.abs(Lam1 - Lam0).max(axis=(1, 2)) > 0
+    assert linked.sum() > 10                   # the grid's vehicles are in links
+    # explicit inverses against the estimator's Cholesky-based information form: round-off
+    # of 3×3 matrices whose condition number is below 1e6
+    np.testing.assert_allclose(np.linalg.inv(carried.cov), Lam, rtol=1e-6, atol=1e-6 * np.abs(Lam).max())
+    diff = carried.mean - expected_mean
+    diff[:, 2] = wrap_angle(diff[:, 2])
+    np.testing.assert_allclose(diff, 0.0, atol=1e-6)
+    # a half-carried link: the carried belief lies strictly between prior and posterior
+    def spread(cov: np.ndarray) -> np.ndarray:
+        return np.trace(cov[linked], axis1=1, axis2=2)
+
+    assert (spread(carried.cov) < spread(prior.cov)).all()
+    assert (spread(carried.cov) > spread(posterior.cov)).all()
 
 
 def test_params_and_setup_are_checked() -> None:

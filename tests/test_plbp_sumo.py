@@ -15,6 +15,10 @@ Oracles and properties:
   components, headings are reported and scored against the truth.
 - With AoA links to an anchor, the position error falls below `gnss-kf`'s (pooled over
   draws of the hand-made scene, a paired comparison on the same rows).
+- A receiver that may stand (`heading.standing`, the χ²₂ test of v = 0 against scipy's
+  quantile) has an unknown heading: its own bearings carry nothing (the estimates do not
+  change when they are replaced by other angles), while the bearings others take of it
+  still place it.
 """
 
 from __future__ import annotations
@@ -27,13 +31,13 @@ import pytest
 from cooploc.errors import ConfigError
 from cooploc.estimators import make_estimator
 from cooploc.estimators.plbp import PLBPParams
-from cooploc.estimators.plbp.heading import with_velocity_heading
+from cooploc.estimators.plbp.heading import STANDING_CHI2, standing, with_velocity_heading
 from cooploc.gaussian import Gaussians
 from cooploc.geometry import wrap_angle
 from cooploc.metrics import evaluate
 from cooploc.scenarios import sumo
 from cooploc.sensors import AngleOfArrival
-from cooploc.types import Recording
+from cooploc.types import Batch, Recording
 from helpers import assert_covariance_close, make_traffic, run_estimator
 
 # SLR vs Jacobian: with σ_v / |v| = 1e-4 the unscented regression differs from the
@@ -74,6 +78,21 @@ def test_a_standing_vehicle_gets_a_spread_heading() -> None:
     assert np.linalg.eigvalsh(joint.cov[0])[0] > 0 and np.isfinite(joint.mean).all()
     empty = with_velocity_heading(Gaussians(np.zeros((0, 4)), np.zeros((0, 4, 4))), (2, 3), 0.01)
     assert empty.mean.shape == (0, 5) and empty.cov.shape == (0, 5, 5)
+
+
+def test_standing_is_the_chi2_test_of_zero_velocity() -> None:
+    from scipy.stats import chi2
+
+    assert STANDING_CHI2 == pytest.approx(chi2.ppf(0.99, 2), rel=1e-12)
+    P = np.array([[0.04, 0.01], [0.01, 0.09]])
+    direction = np.array([0.6, -0.8])
+    scale = np.sqrt(chi2.ppf(0.99, 2) / (direction @ np.linalg.solve(P, direction)))
+    # velocities just inside and just outside the 0.99 ellipse of v = 0, another speed far out
+    v = np.array([0.999 * scale * direction, 1.001 * scale * direction, [8.0, 0.0]])
+    cov = np.repeat(np.diag([4.0, 4.0, 1.0, 1.0])[None], 3, axis=0)
+    cov[:, 2:, 2:] = P
+    beliefs = Gaussians(np.column_stack([np.zeros((3, 2)), v]), cov)
+    np.testing.assert_array_equal(standing(beliefs, (2, 3)), [True, False, False])
 
 
 # ----------------------------------------------------------------------------
@@ -220,3 +239,33 @@ def test_a_layout_without_heading_or_velocity_is_refused(scene: Recording) -> No
         default_cov=np.array([[0.1]]), state_indices=(0, 1, 3))})
     with pytest.raises(ConfigError, match=r"plbp needs a vehicle layout with a heading.*indices \(0, 1, 3\)"):
         make_estimator("plbp", bad, None, np.random.default_rng(0))
+
+
+@pytest.mark.parametrize("name", ["plbp", "prior-lbp"])
+def test_a_standing_receivers_bearings_carry_nothing(name: str, scene: Recording) -> None:
+    # vehicle 4 stands (v = 0, facing north) and is no anchor. In this draw its velocity
+    # belief does not exclude v = 0 during the first 5 steps (v̂ᵀ P_v⁻¹ v̂ = 0.6–3.0; at step
+    # 5 a draw of 13.2 > 9.21 passes it for moving), so there its heading is unknown and the
+    # bearings it measures carry no information: turning them by 2 rad leaves every estimate
+    # as it was. Before they were left out, a heading taken from a velocity that is noise was
+    # the reference of these bearings (and the carried posterior counted that error again
+    # at every step).
+    def turned(batch: Batch) -> Batch:
+        z = batch.z.copy()
+        z[batch.sensor == 4] = wrap_angle(z[batch.sensor == 4] + 2.0)
+        return Batch(z, batch.cov, batch.sensor, batch.subject)
+
+    steps = 5
+    frames = scene.frames[:steps]
+    assert all((f.batches["aoa"].sensor == 4).any() for f in frames)
+    plain, other = (make_estimator(name, scene.setup, None, np.random.default_rng(0)) for _ in range(2))
+    for frame in frames:
+        e = plain.step(frame)
+        batches = {**frame.batches, "aoa": turned(frame.batches["aoa"])}
+        t = other.step(dataclasses.replace(frame, batches=batches))
+        np.testing.assert_array_equal(e.vehicles.mean, t.vehicles.mean)
+        np.testing.assert_array_equal(e.vehicles.cov, t.vehicles.cov)
+    # the bearings that others take of 4 still place it: its estimate is not the GNSS filter's
+    four = [e.vehicles.mean[e.vehicles.ids == 4] for e in run_estimator(name, scene)[:steps]]
+    gnss = [g.vehicles.mean[g.vehicles.ids == 4] for g in run_estimator("gnss-kf", scene)[:steps]]
+    assert not np.allclose(np.concatenate(four), np.concatenate(gnss), rtol=1e-3)

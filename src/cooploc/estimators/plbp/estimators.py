@@ -18,9 +18,15 @@ Choices the paper leaves open:
   of this step's solve. Vehicles that enter start from `Setup.vehicle_prior` or their
   first fix (`estimators.base.birth_beliefs`). Gaussian BP treats the priors of a step
   as independent, but a carried posterior is correlated with its neighbours' through
-  the AoA of earlier steps, so over a long run the same angles are counted again and
-  again (the beliefs grow over-confident). `tracking="own-fixes"` carries each vehicle's
-  filter of its own fixes instead and solves the AoA on it as a snapshot every step.
+  the AoA of earlier steps: a link's information lands in the beliefs of both its ends,
+  and when they are linked again BP adds one end's carried belief to the other's, so a
+  fully carried link is counted twice. The default `tracking="tempered"` carries the
+  step's prior times half of what its links added (`tempered`, a fractional weight of
+  the link factors), which counts it once; `"posterior"` carries the whole posterior
+  (position NEES 1.4× `gnss-kf`'s on sumo-berlin-tlr, tempered 1.2×), and `"own-fixes"`
+  each vehicle's filter of its own fixes, on which the AoA is solved as a snapshot every
+  step (consistent as the GNSS filter, but it forgets the AoA of earlier steps).
+  Measured in docs/plbp.md, "On a city".
 - AoA rows naming a vehicle that is not present are ignored.
 - Output headings are wrapped to [−π, π).
 - Anchors (beyond the snapshot's priors): a scenario may give its anchors a fix of
@@ -33,8 +39,12 @@ Choices the paper leaves open:
   belief as the direction of its velocity (`plbp.heading`: α = atan2(v_y, v_x) + s,
   by statistical linear regression, with its cross-covariance to v); the anchors' fixes
   and the solve run on [p, v, α]; then α is marginalised out again, so that the AoA
-  information kept is what reached p and v. The heading itself is reported in
-  `info["heading"]` (n,) (wrapped) and scored against `Truth.vehicle_heading`.
+  information kept is what reached p and v. A receiver that may stand (its velocity
+  belief does not exclude v = 0, `plbp.heading.standing`) and is no anchor has no known
+  heading: the AoA rows it measures are left out (they carry no information), the rows
+  others take of it stay. Counting them with the velocity's heading was what made the
+  carried posterior over-confident on the cities (docs/plbp.md). The heading itself is
+  reported in `info["heading"]` (n,) (wrapped) and scored against `Truth.vehicle_heading`.
 
 `info["iterate_means"]` (J + 1, n, dx): the beliefs' means before the first and after
 every linearization iteration (heading wrapped), in the order of `Estimate.vehicles`;
@@ -54,7 +64,7 @@ import numpy as np
 
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import VehicleBeliefs, checked_states
-from cooploc.estimators.plbp.heading import with_velocity_heading
+from cooploc.estimators.plbp.heading import standing, with_velocity_heading
 from cooploc.estimators.plbp.links import link_factors
 from cooploc.estimators.plbp.solve import plbp_solve
 from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize, to_information
@@ -64,7 +74,7 @@ from cooploc.registry import register_estimator
 from cooploc.sensors import AngleOfArrival
 from cooploc.types import Batch, Estimate, FloatArray, Frame, IntArray, Setup
 
-__all__ = ["PLBP", "PLBPParams", "PriorLBP", "PriorLBPParams"]
+__all__ = ["LINK_ENDS", "PLBP", "PLBPParams", "PriorLBP", "PriorLBPParams", "tempered"]
 
 
 @dataclass(frozen=True)
@@ -79,12 +89,15 @@ class PLBPParams(Params):
     central_weight : w₀ of the unscented points.
     heading_slip_std : σ_s (rad), spread of the heading about the velocity direction, where
         the heading comes from the velocity (a layout without a heading; `plbp.heading`).
-    tracking : what a step's prior is. ``"posterior"`` (the default, as `aoa-grid-tracking`
-        has it): the previous step's posterior, predicted, updated with the step's own fixes.
-        ``"own-fixes"``: each vehicle's own filter of its fixes (GNSS, and an anchor's
-        fix), predicted and updated the same way; the AoA solve runs on it every step and
-        its posterior is reported but not carried on, so the AoA of one step is never
-        counted again at a later one (module docstring).
+    tracking : what a step carries on to the next one, where it is predicted and updated
+        with that step's own fixes to become its prior. ``"tempered"`` (the default): the
+        step's prior times half of the information its links added (`tempered`): a link's
+        information lands in both its ends, so carrying all of it at each end counts it
+        twice when they are linked again. ``"posterior"``: the step's posterior (until
+        issue 19 the default). ``"own-fixes"``: each vehicle's own filter of its fixes
+        (GNSS, and an anchor's fix); the AoA solve runs on it every step and its posterior
+        is reported but not carried on, so the AoA of one step is never counted again.
+        Measured: docs/plbp.md, "On a city".
     """
 
     linearization_iterations: int = param(5, ge=1)
@@ -92,7 +105,7 @@ class PLBPParams(Params):
     sigma_points: Literal["unscented", "cubature"] = "unscented"
     central_weight: float = param(1.0 / 3.0, ge=0, lt=1)
     heading_slip_std: float = param(0.01, gt=0, le=np.pi)
-    tracking: str = param("posterior", choices=("posterior", "own-fixes"))
+    tracking: str = param("tempered", choices=("tempered", "posterior", "own-fixes"))
 
 
 @dataclass(frozen=True)
@@ -153,13 +166,15 @@ class PLBP:
         beliefs = self._predict(self.vehicles.beliefs, ~born)
         self._started = True
         beliefs = self._fix(beliefs, frame.batches.get("gnss"), self.setup.sensors.get("gnss"))
+        aoa = frame.batch("aoa", 1)
         if self._velocity is not None:
+            aoa = self._moving_receivers(aoa, beliefs, frame.batches.get("anchor"))
             beliefs = with_velocity_heading(beliefs, self._velocity, p.heading_slip_std**2,
                                             method=p.sigma_points, central_weight=p.central_weight)
         beliefs = self._fix(beliefs, frame.batches.get("anchor"), self.setup.sensors.get("anchor"))
         dx = self.setup.vehicle_layout.dim
         own = Gaussians(beliefs.mean[:, :dx], beliefs.cov[:, :dx, :dx])   # the layout's marginal
-        links = link_factors(frame.batch("aoa", 1), self.vehicles.ids)
+        links = link_factors(aoa, self.vehicles.ids)
         posterior, iterates = plbp_solve(
             beliefs, links, self.sensor, linearization_iterations=p.linearization_iterations,
             bp_iterations=p.bp_iterations, posterior=self.posterior, method=p.sigma_points,
@@ -172,8 +187,31 @@ class PLBP:
         if self._velocity is not None:   # marginalise the heading out again
             info["heading"] = mean[:, self._heading]
             mean, cov = mean[:, :dx], cov[:, :dx, :dx]
-        self.vehicles.beliefs = Gaussians(mean, cov) if p.tracking == "posterior" else own
+        if p.tracking == "tempered":
+            carried = tempered(beliefs, posterior, LINK_ENDS)
+            carried.mean[:, self._heading] = wrap_angle(carried.mean[:, self._heading])
+            self.vehicles.beliefs = Gaussians(carried.mean[:, :dx], carried.cov[:, :dx, :dx])
+        else:
+            self.vehicles.beliefs = Gaussians(mean, cov) if p.tracking == "posterior" else own
         return Estimate(checked_states(self.name, "vehicle", self.vehicles.ids, mean, cov), info=info)
+
+    def _moving_receivers(self, aoa: Batch, beliefs: Gaussians, anchor: Batch | None) -> Batch:
+        """The AoA rows whose receiver's heading is known: it moves, or it is an anchor.
+
+        A bearing is relative to the receiver's heading. A vehicle whose velocity belief does
+        not exclude v = 0 may stand (`plbp.heading.standing`), and a standing vehicle's
+        heading is not the direction of a velocity: it is unknown, uniform over the circle,
+        and a bearing minus a uniform angle is uniform whatever the positions. Such a row
+        carries no information and is left out (the exact marginal over the heading); the
+        rows others take of that vehicle stay. An anchor's heading comes with its fix.
+        """
+        still = standing(beliefs, self._velocity)
+        if anchor is not None:
+            still &= ~np.isin(self.vehicles.ids, anchor.subject)
+        keep = ~np.isin(aoa.sensor, self.vehicles.ids[still])
+        if keep.all():
+            return aoa
+        return Batch(aoa.z[keep], aoa.cov[keep], aoa.sensor[keep], aoa.subject[keep])
 
     def _predict(self, beliefs: Gaussians, moving: np.ndarray) -> Gaussians:
         """Prediction with the motion model of every vehicle that was already there."""
@@ -228,6 +266,28 @@ class PriorLBP(PLBP):
     summary: ClassVar[str] = "AoA cooperative position + heading, Gaussian BP linearized at the priors"
     Params: ClassVar[type[Params]] = PriorLBPParams
     posterior: ClassVar[bool] = False
+
+
+# the beliefs a link factor's information lands in: its two ends
+LINK_ENDS = 2
+
+
+def tempered(prior: Gaussians, posterior: Gaussians, ends: int = LINK_ENDS) -> Gaussians:
+    """The prior times the step's link information to the power 1/`ends` (information form).
+
+    Λ = Λ₀ + (Λ⁺ − Λ₀) / ends,  η = η₀ + (η⁺ − η₀) / ends,
+
+    with (Λ₀, η₀) the step's prior and (Λ⁺, η⁺) its posterior. The information of a link
+    lands in the beliefs of both its ends; when a step's posteriors are carried on as the
+    next priors and the two vehicles are linked again, Gaussian BP adds one end's carried
+    belief to the other's through the new link, so a fully carried link is counted twice.
+    Carrying 1/ends of it at each end counts it once (a fractional / power-EP weight of
+    the link factor: Wiegerinck & Heskes 2003; Minka 2004). Vehicles in no link keep their
+    prior. Headings are not wrapped here.
+    """
+    Lam0, eta0 = to_information(prior)
+    Lam1, eta1 = to_information(posterior)
+    return from_information(symmetrize(Lam0 + (Lam1 - Lam0) / ends), eta0 + (eta1 - eta0) / ends)
 
 
 def _scatter(index: IntArray, values: FloatArray, n: int) -> FloatArray:

@@ -19,9 +19,14 @@ et al., IEEE TSP 2015, eqs. 17–22, as `gaussian.statistical_linear_regression`
 
 The cross-covariance P Aᵀ is what lets an AoA update of α reach the velocity (and,
 through the belief's own correlations, the position) once α is marginalised out again.
-A vehicle that stands still (speed within its velocity uncertainty) gets a heading
-spread over the circle (Ω up to π²), so its own AoA rows carry almost nothing, while the
-rows others take of it still place it. The sigma points' headings are put on the branch
+A vehicle that may stand (`standing`: its velocity belief does not exclude v = 0, the
+χ²₂ test at level 0.01) has no heading in this model: a standing vehicle's heading is that
+of the road it stopped on, not the direction of a velocity that is noise. The regression
+still gives it a spread heading, but not spread enough — on sumo-berlin-tlr the heading
+NEES of vehicles slower than 0.1 m/s was 5.5 (error 1.55 rad on average, uniform) against
+0.7 for moving ones — so the estimators leave the AoA rows such a vehicle measures out
+(`PLBP._moving_receivers`; a bearing relative to a uniform heading is uniform: the exact
+marginal), while the rows others take of it still place it. The sigma points' headings are put on the branch
 of atan2 at the mean before averaging (eq. 15).
 
 Complexity: O(n d³) for n beliefs of dimension d, batched.
@@ -34,7 +39,21 @@ import numpy as np
 from cooploc.gaussian import Gaussians, statistical_linear_regression, symmetrize
 from cooploc.types import FloatArray
 
-__all__ = ["with_velocity_heading"]
+__all__ = ["STANDING_CHI2", "standing", "with_velocity_heading"]
+
+# the test of v = 0 at level 0.01: the χ²₂ quantile 0.99, −2 ln 0.01 (= scipy.stats.chi2.ppf(0.99, 2))
+STANDING_CHI2 = -2.0 * np.log(0.01)
+
+
+def standing(beliefs: Gaussians, velocity: tuple[int, ...]) -> np.ndarray:
+    """(n,) bool: the velocity belief does not exclude v = 0 (v̂ᵀ P_v⁻¹ v̂ < χ²₂,0.99).
+
+    Such a vehicle may stand, and a standing vehicle's heading is not the direction of a
+    velocity: it is unknown.
+    """
+    v = beliefs.mean[:, list(velocity)]
+    Pv = beliefs.cov[:, list(velocity)][:, :, list(velocity)]
+    return np.einsum("ni,ni->n", v, np.linalg.solve(Pv, v[..., None])[..., 0]) < STANDING_CHI2
 
 
 def with_velocity_heading(beliefs: Gaussians, velocity: tuple[int, ...], slip_variance: float, *,
