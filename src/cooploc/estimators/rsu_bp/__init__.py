@@ -39,7 +39,7 @@ from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
 from cooploc.estimators.rsu_bp.tracking import FeatureTracker
-from cooploc.estimators.rsu_bp.vehicles import draw, moments, posterior_samples
+from cooploc.estimators.rsu_bp.vehicles import moments, posterior_samples
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -251,9 +251,8 @@ class RsuBP:
             active = np.unique(lookup_ids(own.ids, v2f.sensor[rows])[0])
             slot = np.full(len(own), -1, dtype=np.int64)
             slot[active] = np.arange(active.size)
-            samples = draw(own.mean[active], own.cov[active], N, self.rng)          # φχ
             messages, track[rows], found = self.tracker.update(
-                own.ids, own.mean, own.cov, samples, slot, v2f.select(rows), frame.batches.get("gnss"))
+                own.ids, own.mean, own.cov, v2f.select(rows), frame.batches.get("gnss"))
             info.update(found)
             messages = messages.on(slot, active.size)
             samples, log_w = posterior_samples(
