@@ -48,8 +48,9 @@ with V2F rows). One step:
    r < `prune_threshold` are dropped; those with r ≥ `existence_threshold` are reported.
 
 The feature ids are the filter's own labels (0, 1, …); rows are scored through
-``info["v2f_track"]`` (`metrics.track_identities`). Complexity per step: O(P N_p d²)
-for P gated pairs, plus O(S log F) for the KD-tree queries of S vehicles and F features.
+``info["v2f_track"]`` (`metrics.track_identities`). Complexity per step: O(P d³) for P
+gated pairs (β in closed form), O(P N_p d²) for the messages to the vehicles' particles
+(`rsu_bp.vehicles`), plus O(S log F) for the KD-tree queries of S vehicles and F features.
 """
 
 from __future__ import annotations
