@@ -21,7 +21,7 @@ costs shows in the vehicle RMSE:
 
 For each: vehicle RMSE and mean position NEES over all steps, the ESS of the vehicles'
 importance weights (N_p = 600), and the features' RMSE and NEES against the nearest
-true feature present.
+true feature present, with the share of reported features that duplicate another's.
 """
 
 from __future__ import annotations
@@ -130,9 +130,11 @@ class _Truthful:
             setattr(tracking.FeatureTracker, name, fn)
 
 
-def _feature_scores(rec: Recording, estimates: list) -> tuple[float, float]:
-    """RMSE and mean NEES of the reported features against the nearest true feature present."""
-    err2, nees = [], []
+def _feature_scores(rec: Recording, estimates: list) -> tuple[float, float, float]:
+    """RMSE and mean NEES of the reported features against the nearest true feature present,
+    and the share of reported features that are a second track of a true feature (one that
+    is already the nearest of another reported feature)."""
+    err2, nees, extra, shown = [], [], 0, 0
     for k, est in enumerate(estimates):
         f = est.features
         present = rec.truth.feature_present[k]
@@ -140,15 +142,20 @@ def _feature_scores(rec: Recording, estimates: list) -> tuple[float, float]:
             continue
         true = rec.truth.feature_states[k][present][:, :2]
         d = np.linalg.norm(f.mean[:, None, :2] - true[None], axis=2)
-        e = true[d.argmin(axis=1)] - f.mean[:, :2]
+        nearest = d.argmin(axis=1)
+        extra += nearest.size - np.unique(nearest).size
+        shown += nearest.size
+        e = true[nearest] - f.mean[:, :2]
         err2.append((e**2).sum(axis=1))
         nees.append(np.einsum("fi,fi->f", e, np.linalg.solve(f.cov[:, :2, :2], e[..., None])[..., 0]))
     if not err2:
-        return float("nan"), float("nan")
-    return float(np.sqrt(np.concatenate(err2).mean())), float(np.concatenate(nees).mean())
+        return float("nan"), float("nan"), float("nan")
+    return (float(np.sqrt(np.concatenate(err2).mean())), float(np.concatenate(nees).mean()),
+            extra / shown)
 
 
-def run_variant(rec: Recording, variant: str, seed: int) -> dict[str, Any]:
+def run_variant(rec: Recording, variant: str, seed: int, overrides: dict[str, Any] | None = None
+                ) -> dict[str, Any]:
     matched_motion = variant.endswith("+matched-motion")
     name = variant.removesuffix("+matched-motion")
     setup = rec.setup
@@ -160,7 +167,8 @@ def run_variant(rec: Recording, variant: str, seed: int) -> dict[str, Any]:
     else:
         patch = _Truthful(rec, exact_map="exact-map" in name, known="known-association" in name)
         patch.install()
-        est = make_estimator("rsu-bp", setup, RsuBPParams(n_particles=600), np.random.default_rng(seed))
+        params = RsuBPParams(n_particles=600).with_overrides(overrides or {})
+        est = make_estimator("rsu-bp", setup, params, np.random.default_rng(seed))
     try:
         estimates, ess, seconds = [], [], 0.0
         for k, frame in enumerate(rec.frames):
@@ -186,7 +194,8 @@ def run_variant(rec: Recording, variant: str, seed: int) -> dict[str, Any]:
         result.update(ess_min=float(ess_all.min()), ess_p5=float(np.percentile(ess_all, 5)),
                       ess_median=float(np.median(ess_all)))
     if name != "gnss-kf":
-        result["feature_rmse_nearest"], result["feature_nees_mean"] = _feature_scores(rec, estimates)
+        (result["feature_rmse_nearest"], result["feature_nees_mean"],
+         result["duplicate_share"]) = _feature_scores(rec, estimates)
     return result
 
 
@@ -197,15 +206,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--variants", default=",".join(VARIANTS),
                         help="comma-separated; append +matched-motion to any")
+    parser.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                        help="an rsu-bp parameter for every variant (repeatable)")
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args(argv)
     results: dict[str, Any] = {"environment": environment(), "preset": args.preset, "seed": args.seed,
-                               "duration": args.duration, "variants": {}}
+                               "duration": args.duration, "params": args.param, "variants": {}}
+    overrides = dict(item.split("=", 1) for item in args.param)
     rec = recording(args.preset, args.seed, {"duration": args.duration} if args.duration else None)
     print(f"{args.preset}: {len(rec.frames)} steps, {rec.truth.vehicle_ids.size} vehicles, "
           f"{rec.truth.feature_ids.size} features")
     for variant in args.variants.split(","):
-        r = run_variant(rec, variant, args.seed)
+        r = run_variant(rec, variant, args.seed, overrides)
         results["variants"][variant] = r
         print(f"{variant:45s} " + "  ".join(f"{k} {v:.3g}" for k, v in r.items()), flush=True)
     if args.out is not None:
