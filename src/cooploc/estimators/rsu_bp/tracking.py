@@ -38,7 +38,8 @@ with V2F rows). One step:
    r⁻ P_D Σ_m ν_{m→k} N(z_m; H f̃ − H x, W + H P̃ Hᵀ), with (f̃, P̃) the feature's belief
    without everything s ever sent it (extrinsic, Fröhle (22); `VehicleMessages`). The
    vehicle's belief b_s = φ_s χ_s Π_k μ_{k,s} (26) is not carried into its track:
-   next step's messages carry the features' information again.
+   next step's messages carry the features' information again (a vehicle without rows
+   reports its last belief predicted and updated with GNSS: `RsuBP._step_unknown`).
 7. **Existence** of legacy features and **births**: every row that no legacy feature
    explains starts a potential feature with r = P(not legacy) λ_b/κ, its state from the
    row and the vehicle's fix. Births of one step from different vehicles within the
