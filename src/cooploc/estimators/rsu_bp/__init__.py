@@ -39,7 +39,7 @@ from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
 from cooploc.estimators.rsu_bp.tracking import FeatureTracker
-from cooploc.estimators.rsu_bp.vehicles import draw, moments, posterior_samples
+from cooploc.estimators.rsu_bp.vehicles import moments, posterior_samples
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -187,6 +187,9 @@ class RsuBP:
         if self.tracker is not None:
             self.tracker = FeatureTracker(setup, params, self.clutter_intensity)
             self.own = GnssKF(setup, GnssKFParams(), rng)
+            # the reported beliefs, predicted and updated with GNSS (odometry) like a track:
+            # what a vehicle without V2F rows reports (see `_step_unknown`)
+            self.carried = GnssKF(setup, GnssKFParams(), rng)
 
     # ------------------------------------------------------------------ step
 
@@ -233,8 +236,16 @@ class RsuBP:
 
         φ_s χ_s is each vehicle's own GNSS track (`gnss-kf`), sampled afresh every step;
         the features' messages weight the samples and are not carried into the track.
+
+        A vehicle without V2F rows reports its last reported belief predicted to this step
+        and updated with this step's GNSS (and odometry) rows (`self.carried`, a second
+        `gnss-kf` whose beliefs are replaced by the reported ones after every step), not
+        its GNSS-only track: what the features told it earlier is kept, as in the joint
+        filter, and counted once, since the next step with rows starts again from the
+        GNSS-only track.
         """
         own = self.own.step(frame).vehicles
+        carried = self.carried.step(frame).vehicles
         self.tracker.predict(steps)
         N = self.params.n_particles
         v2f = frame.batches.get("v2f")
@@ -244,16 +255,15 @@ class RsuBP:
         if n_rows and len(own):
             rows = np.flatnonzero(lookup_ids(own.ids, v2f.sensor)[1])
         info: dict[str, Any] = {}
-        mean, cov = own.mean.copy(), own.cov.copy()
+        mean, cov = carried.mean.copy(), carried.cov.copy()     # both filters hold the same ids
         ess = np.full(len(own), float(N))
         if rows.size:
             # particles only for vehicles with rows: the others' belief is their own track
             active = np.unique(lookup_ids(own.ids, v2f.sensor[rows])[0])
             slot = np.full(len(own), -1, dtype=np.int64)
             slot[active] = np.arange(active.size)
-            samples = draw(own.mean[active], own.cov[active], N, self.rng)          # φχ
             messages, track[rows], found = self.tracker.update(
-                own.ids, own.mean, own.cov, samples, slot, v2f.select(rows), frame.batches.get("gnss"))
+                own.ids, own.mean, own.cov, v2f.select(rows), frame.batches.get("gnss"))
             info.update(found)
             messages = messages.on(slot, active.size)
             samples, log_w = posterior_samples(
@@ -267,6 +277,7 @@ class RsuBP:
         info["degenerate"] = bool(len(own) and ess.min() < DEGENERACY_SHARE * N)
         features, info["feature_existence"] = self.tracker.estimate()
         vehicles = checked_states(self.name, "vehicle", own.ids, mean, cov)
+        self.carried.vehicles.beliefs = Gaussians(vehicles.mean, vehicles.cov)
         return Estimate(vehicles, features, info)
 
     # ------------------------------------------------------------ vehicles

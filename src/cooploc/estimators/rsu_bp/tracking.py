@@ -15,9 +15,13 @@ with V2F rows). One step:
    z − (H f̄ − H x̄_s) lies inside the `gate_probability` ellipsoid of W + H P_f Hᵀ + H P_s Hᵀ
    (candidates from a KD-tree over feature positions): the work is linear in the rows
    and the features near them, not in all pairs.
-3. **Measurement evaluation** (Fröhle (14)) for gated pairs: β_{k,s}(m) = (1/N_p) Σ_l
-   N(z_m; H f̄_k − H x_l, W + H P_k Hᵀ) over the samples x_l of φχ, the feature belief
-   integrated in closed form (one sum over particles instead of the N_p² pair kernel).
+3. **Measurement evaluation** (Fröhle (14)) for gated pairs: β_{k,s}(m) =
+   ∫∫ N(z_m; H f − H x, W) φχ(x) α_k(f) dx df = N(z_m; H f̄_k − H x̄_s, W + H P_k Hᵀ +
+   H P_s Hᵀ), in closed form since both beliefs are Gaussian here (φχ is the vehicle's
+   Kalman track). It is the limit of the paper's particle sum; a sum over N_p samples
+   of a track metres wide would hold a handful of particles within a decimetre-precise
+   row of a well-known feature and make β, and so the association, noisy exactly
+   when the map is good.
 4. **Data association with existence** per vehicle (`existence`: ψ, ψ(0), κ with the
    birth intensity λ_b; `association.bp_association`, Fröhle (15)–(20)). A feature out
    of the vehicle's range R_s (`RelativePosition.max_range`) has P(in range) ≈ 0 and
@@ -34,7 +38,8 @@ with V2F rows). One step:
    r⁻ P_D Σ_m ν_{m→k} N(z_m; H f̃ − H x, W + H P̃ Hᵀ), with (f̃, P̃) the feature's belief
    without everything s ever sent it (extrinsic, Fröhle (22); `VehicleMessages`). The
    vehicle's belief b_s = φ_s χ_s Π_k μ_{k,s} (26) is not carried into its track:
-   next step's messages carry the features' information again.
+   next step's messages carry the features' information again (a vehicle without rows
+   reports its last belief predicted and updated with GNSS: `RsuBP._step_unknown`).
 7. **Existence** of legacy features and **births**: every row that no legacy feature
    explains starts a potential feature with r = P(not legacy) λ_b/κ, its state from the
    row and the vehicle's fix. Births of one step from different vehicles within the
@@ -44,8 +49,9 @@ with V2F rows). One step:
    r < `prune_threshold` are dropped; those with r ≥ `existence_threshold` are reported.
 
 The feature ids are the filter's own labels (0, 1, …); rows are scored through
-``info["v2f_track"]`` (`metrics.track_identities`). Complexity per step: O(P N_p d²)
-for P gated pairs, plus O(S log F) for the KD-tree queries of S vehicles and F features.
+``info["v2f_track"]`` (`metrics.track_identities`). Complexity per step: O(P d³) for P
+gated pairs (β in closed form), O(P N_p d²) for the messages to the vehicles' particles
+(`rsu_bp.vehicles`), plus O(S log F) for the KD-tree queries of S vehicles and F features.
 """
 
 from __future__ import annotations
@@ -60,11 +66,9 @@ from cooploc.estimators.rsu_bp import existence as ex
 from cooploc.estimators.rsu_bp.vehicles import (
     VehicleMessages,
     group_log_sum,
-    log_gauss_groups,
     log_normal_rows,
 )
 from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize
-from cooploc.particles import log_sum_exp
 from cooploc.types import Batch, FloatArray, IntArray, Setup, StateSet, lookup_ids
 
 __all__ = ["FeatureTracker"]
@@ -135,45 +139,37 @@ class FeatureTracker:
         f.mean, f.cov = belief.mean, belief.cov
         f.existence = f.existence * self.params.survival_probability**steps
 
-    def update(self, vehicle_ids: IntArray, v_mean: FloatArray, v_cov: FloatArray, samples: FloatArray,
-               slot: IntArray, v2f: Batch, gnss: Batch | None
-               ) -> tuple[VehicleMessages, IntArray, dict[str, Any]]:
+    def update(self, vehicle_ids: IntArray, v_mean: FloatArray, v_cov: FloatArray, v2f: Batch,
+               gnss: Batch | None) -> tuple[VehicleMessages, IntArray, dict[str, Any]]:
         """Steps 2–7 for the V2F rows `v2f` of present vehicles.
 
         Parameters
         ----------
         vehicle_ids (S,), v_mean, v_cov : the vehicles and their beliefs φχ (Gaussian).
-        samples (A, N, dx) : equally weighted samples of φχ of the vehicles with rows;
-            slot (S,) : the sample set of each vehicle (−1: none).
 
         Returns
         -------
         The messages μ_{k,s} to the vehicles, the track id of every row (−1: none), diagnostics.
         """
         prm, f, p_d = self.params, self.features, self.p_d
-        S, N = v_mean.shape[0], samples.shape[1]
+        S = v_mean.shape[0]
         R = len(v2f)
         s_row = lookup_ids(vehicle_ids, v2f.sensor)[0]
         Hx, Hf = self.Hx, self.Hf
         c_mean = v_mean @ Hx.T                                                   # H x̄_s
         c_cov = Hx @ v_cov @ Hx.T
-        r_idx, k_idx = self._gate(v2f, s_row, c_mean, c_cov)
+        # 2.–3. gated pairs and their log β (P,)
+        r_idx, k_idx, log_beta = self._gate(v2f, s_row, c_mean, c_cov)
         # pairs (s, k) with a gated row, rows sorted by pair
         sk_key = s_row[r_idx] * max(f.ids.size, 1) + k_idx
         order = np.lexsort((r_idx, sk_key))
-        r_idx, k_idx, sk_key = r_idx[order], k_idx[order], sk_key[order]
+        r_idx, k_idx, sk_key, log_beta = r_idx[order], k_idx[order], sk_key[order], log_beta[order]
         sk_unique, pair = np.unique(sk_key, return_inverse=True)
         n_sk = sk_unique.size
         sk_s = sk_unique // max(f.ids.size, 1)
         sk_k = sk_unique % max(f.ids.size, 1)
         p_in_sk = self._p_visible(sk_s, sk_k, v_mean, v_cov)
         r_minus = f.existence
-        # 3. measurement evaluation, pairs (P, N)
-        Pf = Hf @ f.cov[k_idx] @ Hf.T if k_idx.size else np.zeros((0, *v2f.cov.shape[1:]))
-        each = np.arange(r_idx.size)
-        log_l = log_gauss_groups(v2f.z[r_idx] - f.mean[k_idx] @ Hf.T, v2f.cov[r_idx] + Pf,
-                                 np.zeros(r_idx.size), slot[s_row[r_idx]], each, r_idx.size, samples, Hx)
-        log_beta = log_sum_exp(log_l, axis=1) - np.log(N)                        # (P,)
         # 4. association per vehicle with rows, padded (V, K_max, M_max)
         log_birth = self._log_birth(v2f, s_row, v_mean, v_cov)
         log_kappa = ex.row_weights(self.clutter, log_birth)
@@ -268,11 +264,15 @@ class FeatureTracker:
     # ------------------------------------------------------------ pieces
 
     def _gate(self, v2f: Batch, s_row: IntArray, c_mean: FloatArray, c_cov: FloatArray
-              ) -> tuple[IntArray, IntArray]:
-        """(row, feature) pairs whose residual lies inside the gate."""
+              ) -> tuple[IntArray, IntArray, FloatArray]:
+        """(row, feature) pairs whose residual lies inside the gate, and log β of each (step 3).
+
+        β = N(z − (H f̄ − H x̄_s); 0, S), S = W + H P_f Hᵀ + H P_s Hᵀ: the same residual
+        and covariance as the gate's distance.
+        """
         f = self.features
         if not f.ids.size or not len(v2f):
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
         from scipy.spatial import cKDTree
         Hf, xy = self.Hf, self.xy
         f_pos = (f.mean @ Hf.T)[:, xy]
@@ -286,12 +286,16 @@ class FeatureTracker:
         r_idx = np.repeat(np.arange(len(v2f)), counts)
         k_idx = np.fromiter((k for h in hits for k in h), dtype=np.int64, count=int(counts.sum()))
         if not r_idx.size:
-            return r_idx, k_idx
+            return r_idx, k_idx, np.zeros(0)
         resid = v2f.z[r_idx] - (f.mean[k_idx] @ Hf.T - c_mean[s_row[r_idx]])
         S = v2f.cov[r_idx] + Hf @ f.cov[k_idx] @ Hf.T + c_cov[s_row[r_idx]]
-        d2 = np.einsum("pi,pi->p", resid, np.linalg.solve(S, resid[..., None])[..., 0])
+        L = np.linalg.cholesky(S)
+        white = np.linalg.solve(L, resid[..., None])[..., 0]                      # L⁻¹ r
+        d2 = np.einsum("pi,pi->p", white, white)
         inside = d2 <= self.gate
-        return r_idx[inside], k_idx[inside]
+        log_det = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+        log_beta = -0.5 * (resid.shape[1] * np.log(2.0 * np.pi) + log_det + d2)
+        return r_idx[inside], k_idx[inside], log_beta[inside]
 
     def _p_visible(self, s: IntArray, k: IntArray, v_mean: FloatArray, v_cov: FloatArray) -> FloatArray:
         """P(feature k within the sensing range of vehicle s), Gaussian in the distance."""
