@@ -27,7 +27,7 @@ def zhang():
     ("icp", "gnss (gnss-position), odometry (odometry), v2f (relative-position)"),
     ("icp-da-lc", "gnss (gnss-position), odometry (odometry), v2f (relative-position)"),
     ("icp-da-pf", "gnss (gnss-position), odometry (odometry), v2f (relative-position)"),
-    ("rsu-bp", "gnss (gnss-position), v2f (relative-position)"),
+    ("rsu-bp", "gnss (gnss-position), v2f (relative-position), odometry (odometry)"),
 ])
 def test_an_estimator_that_can_use_nothing_of_anonymous_gnss_is_refused(zhang, name, reads):
     # before: gnss-kf and oracle-kf ignored the anonymous rows and returned the exact prior (0.000 m)
@@ -99,3 +99,16 @@ def test_gm_phd_names_odometry_it_cannot_place(zhang, sensor_model, use_identiti
                            np.random.default_rng(0), zhang.truth)
     assert unused_kinds(cls, setup, built) == unused
     assert unused_kinds(cls, setup) == ("radar",)      # the class alone cannot tell
+
+
+@pytest.mark.parametrize("features, unused", [("known", ("odometry",)), ("unknown", ())])
+def test_rsu_bp_fuses_odometry_only_in_its_city_mode(features, unused):
+    from dataclasses import replace
+
+    from cooploc.sensors import Odometry
+    recording = froehle_recording(0, n_steps=3)
+    setup = replace(recording.setup, sensors={**recording.setup.sensors,
+                                              "odometry": Odometry(default_cov=np.eye(2))})
+    cls = estimators()["rsu-bp"]
+    built = make_estimator("rsu-bp", setup, cls.Params(features=features), np.random.default_rng(0))
+    assert unused_kinds(cls, setup, built) == unused

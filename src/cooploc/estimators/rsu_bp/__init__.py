@@ -141,7 +141,7 @@ class RsuBP:
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "froehle2018"
     usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
-        "gnss": ("gnss-position",), "v2f": ("relative-position",)}
+        "gnss": ("gnss-position",), "v2f": ("relative-position",), "odometry": ("odometry",)}
 
     def __init__(self, setup: Setup, params: RsuBPParams, rng: np.random.Generator) -> None:
         self.setup, self.params, self.rng = setup, params, rng
@@ -190,6 +190,9 @@ class RsuBP:
             # the reported beliefs, predicted and updated with GNSS (odometry) like a track:
             # what a vehicle without V2F rows reports (see `_step_unknown`)
             self.carried = GnssKF(setup, GnssKFParams(), rng)
+        # odometry reaches the vehicles only through the city mode's GNSS tracks
+        self.left_aside: tuple[str, ...] = (
+            ("odometry",) if self.tracker is None and "odometry" in setup.sensors else ())
 
     # ------------------------------------------------------------------ step
 
