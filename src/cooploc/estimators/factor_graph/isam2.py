@@ -127,6 +127,8 @@ class FgIsam2:
         isam_params.setRelinearizeThreshold(params.relinearize_threshold)
         skip = params.relinearize_skip or (10 if self.data.fields is None else 1)
         isam_params.relinearizeSkip = skip
+        # reuse the factor slots that marginalisation empties (GTSAM's advice for fixed lag)
+        isam_params.findUnusedFactorSlots = params.lag > 0
         # timestamps are step indices: keys of steps < k − lag are marginalised at step k
         self.isam = gtsam.IncrementalFixedLagSmoother(float(params.lag or np.inf), isam_params)
         self._gtsam = gtsam
