@@ -14,7 +14,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from cooploc.estimators.factor_graph import NEW, OLD, GraphData
+from cooploc.estimators.factor_graph import NEW, OLD, GraphData, ISAM2Params
 from cooploc.estimators.factor_graph.estimates import PositionFilter
 from cooploc.registry import make_estimator
 from cooploc.types import Recording
@@ -72,6 +72,27 @@ def test_vehicles_entering_and_leaving_isam2_ends_at_the_batch_solution(traffic:
     # relinearize_threshold 0.1 m leaves linearisation points up to 0.1 m stale
     last, best = filtered[-1].vehicles.mean[:, :2], smoothed[-1].vehicles.mean[:, :2]
     np.testing.assert_allclose(last, best, atol=0.05)
+
+
+def test_vehicles_entering_and_leaving_are_marginalised_out_of_isam2(traffic: Recording) -> None:
+    """Fixed lag of 3 steps while vehicles enter (at steps 10 and 25) and one leaves (at
+    40): iSAM2 holds exactly the variables of the last 4 steps — none of the vehicle that
+    left once it is 4 steps gone — every estimate holds exactly the present vehicles, finite, and stays
+    within linearisation error of the full iSAM2's (measured ≤ 0.03 m)."""
+    lag = 3
+    full = make_estimator("fg-isam2", traffic.setup, ISAM2Params(lag=0), np.random.default_rng(0))
+    lagged = make_estimator("fg-isam2", traffic.setup, ISAM2Params(lag=lag), np.random.default_rng(0))
+    for k, f in enumerate(traffic.frames):
+        a, b = full.step(f), lagged.step(f)
+        np.testing.assert_array_equal(b.vehicles.ids, np.sort(f.vehicles))
+        assert np.isfinite(b.vehicles.mean).all() and np.isfinite(b.vehicles.cov).all()
+        # relinearize_threshold 0.1 m: linearisation points up to 0.1 m stale in either
+        np.testing.assert_allclose(b.vehicles.mean, a.vehicles.mean, rtol=0, atol=0.1)
+        kept = set(lagged.isam.getLinearizationPoint().keys())
+        window = set(np.concatenate([g.vars for g in lagged.data.frames[max(k - lag, 0):k + 1]]).tolist())
+        assert kept == window
+    assert set(traffic.frames[39].vehicles.tolist()) - set(traffic.frames[-1].vehicles.tolist())   # one left
+    assert lagged.data.n_topology > 0
 
 
 @pytest.mark.parametrize("name", ["fg-topology-old", "fg-isam2"])
