@@ -138,8 +138,7 @@ class ICPDAPF(ICPDALC):
         if v2f is not None and len(v2f) and agents.size:
             posterior, iterations = self._particle_step(frame, v2f, prior, network, info)
         else:
-            self._share_tracks(network, self.features.Lam, self.features.eta,
-                               np.zeros(self.features.Lam.shape[:2], dtype=bool))
+            self._share_tracks(network, np.zeros(self.features.block.shape[:2], dtype=bool))
         info.update(network.counters())
         info["bpa_iterations"] = iterations
         vehicles = checked_states(self.name, "vehicle", agents, posterior.mean, posterior.cov)
@@ -195,7 +194,7 @@ class ICPDAPF(ICPDALC):
         blk_p = np.concatenate([p_assoc, np.ones(ci.size)])
         blk_log_eta = np.concatenate([log_eta, np.zeros(ci.size)])
         if blk_i.size == 0:
-            self._share_tracks(network, self.features.Lam, self.features.eta, np.zeros((n, F), dtype=bool))
+            self._share_tracks(network, np.zeros((n, F), dtype=bool))
             return prior, 0
         pair_key, blk_pair = np.unique(blk_i * F + blk_k, return_inverse=True)
         pair_i, pair_k = pair_key // F, pair_key % F
@@ -291,10 +290,8 @@ class ICPDAPF(ICPDALC):
         v_mean, v_cov = weighted_moments(vehicles)
         f_mean, f_cov = weighted_moments(features)
         f_Lam, f_eta = to_information(Gaussians(f_mean, f_cov))
-        Lam = np.zeros((n, F, d, d))
-        eta = np.zeros((n, F, d))
-        Lam[pair_i, pair_k], eta[pair_i, pair_k] = f_Lam, f_eta
-        self._share_tracks(network, Lam, eta, members)
+        self.features.Lam[pair_i, pair_k], self.features.eta[pair_i, pair_k] = f_Lam, f_eta
+        self._share_tracks(network, members)
         return Gaussians(v_mean, v_cov), iterations
 
 
