@@ -180,13 +180,17 @@ def _psd(M: FloatArray) -> FloatArray:
 class _FeatureCopies:
     """Each agent's copy of every feature belief, information form, in one block per copy:
     `block` (n, F, d² + d) holds Λ (n, F, d, d) and η (n, F, d), which are views of it, so
-    that the copies are flooded and reset in place (no (n, F) temporaries per step)."""
+    that the copies are flooded and reset in place (no (n, F) temporaries per step).
+    Re-indexing (agents come and go every step) writes into the memory of the block it
+    replaced two re-indexings before when that is large enough: touching fresh memory
+    for a city's block cost more than the copy itself."""
 
     def __init__(self, d: int) -> None:
         self.d = d
         self.agents: IntArray = np.zeros(0, dtype=np.int64)
         self.ids: IntArray = np.zeros(0, dtype=np.int64)
         self.block = np.zeros((0, 0, d * d + d))
+        self._spare = np.zeros(0)                    # flat memory for the next re-indexing
 
     @property
     def Lam(self) -> FloatArray:
@@ -201,19 +205,22 @@ class _FeatureCopies:
 
     def reindex(self, agents: IntArray, ids: IntArray) -> None:
         """Rows for `agents`, columns for feature `ids`; new ones start with zero information."""
-        same_agents = np.array_equal(agents, self.agents)
-        if same_agents and np.array_equal(ids, self.ids):
+        if np.array_equal(agents, self.agents) and np.array_equal(ids, self.ids):
             return
-        block = np.zeros((agents.size, ids.size, self.block.shape[2]))
+        from cooploc.estimators.icp._block_kernels import copy_copies  # numba, on use
+
+        shape = (agents.size, ids.size, self.block.shape[2])
+        size = int(np.prod(shape))
+        if self._spare.size < size:                  # room for some growth of the traffic
+            self._spare = np.empty(size + size // 4)
+        block = self._spare[:size].reshape(shape)
+        block.fill(0.0)
+        ia = np.flatnonzero(np.isin(agents, self.agents))
+        ja = np.searchsorted(self.agents, agents[ia])
         jf = np.flatnonzero(np.isin(ids, self.ids))
         kf = np.searchsorted(self.ids, ids[jf])
-        if same_agents:
-            block[:, jf] = self.block[:, kf]
-        else:
-            ia = np.flatnonzero(np.isin(agents, self.agents))
-            ja = np.searchsorted(self.agents, agents[ia])
-            if ia.size and jf.size:
-                block[np.ix_(ia, jf)] = self.block[np.ix_(ja, kf)]
+        copy_copies(self.block, ja, kf, block, ia, jf)
+        self._spare = self.block.base if self.block.base is not None else self.block.reshape(-1)
         self.agents, self.ids, self.block = agents, ids, block
 
     def known(self) -> np.ndarray:
@@ -319,10 +326,12 @@ class ICP:
         copies = self.features
         if not joined.any() or not copies.ids.size or not network.n_edges:
             return
+        from cooploc.estimators.icp._block_kernels import reset_missing  # numba, on use
+
         n, F = copies.block.shape[:2]
         owner = np.broadcast_to(network.agents[:, None], (n, F))
         have, _, _ = flood(network, copies.known(), copies.block, 1, owner, accept=joined, overwrite=True)
-        copies.block[~have] = 0.0
+        reset_missing(copies.block, have)
 
     def _bpa_l(self, network: Network, agents: IntArray, prior: Gaussians, v2f: Batch | None,
                rows: IntArray, slot_ids: IntArray) -> tuple[Gaussians, int]:
@@ -404,11 +413,13 @@ class ICP:
         nobody in an agent's reach sensed is reset to uniform there (paper §IV-B): its
         column is dropped once no agent holds it.
         """
+        from cooploc.estimators.icp._block_kernels import reset_missing  # numba, on use
+
         copies = self.features
         n, F = copies.block.shape[:2]
         owner = np.broadcast_to(network.agents[:, None], (n, F))
         have, _, _ = flood(network, senses, copies.block, self.params.share_hops, owner, overwrite=True)
-        copies.block[~have] = 0.0
+        reset_missing(copies.block, have)
         keep = have.any(axis=0)
         if not keep.all():
             copies.reindex(copies.agents, copies.ids[keep])
