@@ -355,3 +355,43 @@ def test_pairwise_sum_is_numpys(rng: np.random.Generator) -> None:
         assert _pairwise(x, 0, length) == np.sum(x), length
         plain_differs |= float(np.add.accumulate(x)[-1]) != np.sum(x)
     assert plain_differs                                           # the test can tell the orders apart
+
+
+def test_block_kernels_equal_the_numpy_indexing(rng: np.random.Generator) -> None:
+    """`copy_copies` is `target[np.ix_(rows_to, cols_to)] = source[np.ix_(rows_from, cols_from)]`
+    and `reset_missing` is `block[~have] = 0`, bitwise."""
+    from cooploc.estimators.icp._block_kernels import copy_copies, reset_missing
+
+    source = rng.normal(size=(7, 9, 5))
+    rows_from, cols_from = np.array([6, 0, 3]), np.array([8, 2, 5, 1])
+    rows_to, cols_to = np.array([1, 2, 4]), np.array([0, 3, 6, 7])
+    target = rng.normal(size=(5, 8, 5))
+    expected = target.copy()
+    expected[np.ix_(rows_to, cols_to)] = source[np.ix_(rows_from, cols_from)]
+    copy_copies(source, rows_from, cols_from, target, rows_to, cols_to)
+    np.testing.assert_array_equal(target, expected)
+    have = rng.random((5, 8)) < 0.5
+    expected[~have] = 0.0
+    reset_missing(target, have)
+    np.testing.assert_array_equal(target, expected)
+
+
+def test_reindexed_copies_keep_their_values(rng: np.random.Generator) -> None:
+    """Re-indexing the track copies (agents leave and join, tracks come and go) keeps each
+    surviving (agent, track) copy and zeroes the new ones, also when it reuses memory."""
+    from cooploc.estimators.icp.gaussian_bp import _FeatureCopies
+
+    copies = _FeatureCopies(2)
+    layouts = [(np.array([1, 4, 7]), np.array([10, 20])), (np.array([1, 4, 7, 9]), np.array([10, 20, 30])),
+               (np.array([4, 9]), np.array([20, 30])), (np.array([2, 4, 9, 11]), np.array([5, 20, 30, 40]))]
+    for agents, ids in layouts:
+        before = {(int(a), int(f)): copies.block[i, j].copy()
+                  for i, a in enumerate(copies.agents) for j, f in enumerate(copies.ids)}
+        copies.reindex(agents, ids)
+        assert copies.block.shape == (agents.size, ids.size, 6)
+        for i, a in enumerate(agents):
+            for j, f in enumerate(ids):
+                np.testing.assert_array_equal(copies.block[i, j], before.get((int(a), int(f)), np.zeros(6)))
+        copies.block[...] = rng.normal(size=copies.block.shape)      # new values for the next layout
+        np.testing.assert_array_equal(copies.Lam[..., 1, 0], copies.block[..., 2])   # views of the block
+        np.testing.assert_array_equal(copies.eta, copies.block[..., 4:])

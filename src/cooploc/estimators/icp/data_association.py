@@ -228,8 +228,11 @@ class ICPDALC(ICP):
                                     self._sensing_range)
             registered = reg.registered
             if registered.any():
+                # (13) again where the belief changed: the entries of registered vehicles
                 beliefs = reg.beliefs
-                log_l = self._log_eta(v2f, beliefs, tracks, ai[pair], pair, wi, row_of)
+                redo = np.flatnonzero(registered[ai[pair]])
+                log_l[redo] = self._log_eta(v2f, beliefs, tracks, ai[pair[redo]], pair[redo], wi[redo],
+                                            row_of)
         # the weights of (14)–(17): entries as one (1, E) block, one miss weight for every pair
         log_psi, log_missed, _ = association_weights(log_l[None], p.detection_probability,
                                                      p.new_feature_intensity)
