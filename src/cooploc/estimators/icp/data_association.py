@@ -14,9 +14,11 @@ Algorithm per step, at every agent i, before the Gaussian BPA-L of `icp`:
    (`registration`, on by default) it is b_i^(0) after i has located itself against
    the tracks it holds from all its rows jointly, without row ℓ itself
    (`cooploc.estimators.icp.registration`), and b_i^(0) where that finds nothing;
-2. BPA-DA (14)–(17), P iterations over the tracks i holds (`association.bp_association`,
-   Williams & Lau), batched over agents; the new-feature hypothesis takes the role of
-   clutter, with intensity `new_feature_intensity`;
+2. BPA-DA (14)–(17), P iterations over the tracks i holds (the iterations of
+   `association.bp_association`, Williams & Lau), over the (agent, track, row) entries
+   only (`ragged_association`: bitwise the padded batch, without its padding); the
+   new-feature hypothesis takes the role of clutter, with intensity
+   `new_feature_intensity`;
 3. (30) a track with b(α = 0) < η_TH is detected and paired with its most probable
    row; a row wanted by two tracks goes to the more probable pairing;
 4. births: an unclaimed row whose new-feature probability is at least ½ starts a
@@ -46,9 +48,10 @@ made — 3 % of the rows, and 37 of the 92 rows of vehicles whose prior was wide
 `icp`'s 0.64 m; with the registration 0.64 m (docs/icp.md, "What the association
 sees"). `registration = False` gives the paper's (13).
 
-Cost per step and agent: O(P F W) for the BPA-DA over F tracks and W rows, O(H W F)
-for the registration (H pivot pairs, at most F W), O(C log C + pairs within the gate)
-for grouping C birth candidates, then that of `icp`.
+Cost per step and agent: O(P F_i W_i) for the BPA-DA over the F_i tracks agent i holds
+and its W_i rows, O(H W K) for the registration (H pivot pairs, at most F_i W_i; W and K
+the most rows and held tracks of any agent), O(C log C + pairs within the gate) for
+grouping C birth candidates, then that of `icp`. Measured: docs/icp.md, "Cost per step".
 """
 
 from __future__ import annotations

@@ -91,7 +91,9 @@ BPA-L iterations (default 10), and how an agent learns the number of vehicles th
 consensus average must be multiplied by — here the leader-ratio consensus, which
 needs no count.
 
-Cost per step and agent: O(N_iter N_cons F d²) for F features in view, d = 4.
+Cost per step and agent: O(N_iter N_cons F d²) for F features in view, d = 4. Every
+agent keeps a copy slot for every track of the network ((n, F) blocks, `_FeatureCopies`),
+re-indexed and flooded in place each step (docs/icp.md, "Cost per step").
 `info` holds `messages` and `bytes` sent over V2V this step, `bpa_iterations`.
 Derivation of the messages for singular beliefs: docs/icp.md.
 """
