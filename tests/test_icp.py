@@ -308,3 +308,90 @@ def test_a_vehicle_that_joins_takes_its_neighbours_tracks() -> None:
     mine = estimate.info["v2f_track"][v2f.sensor == joiner]
     # its rows went to the tracks the other vehicle already held, not to new features
     assert mine.size == 2 and np.isin(mine, before).all()
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_ragged_association_equals_the_padded_bp_bitwise(seed: int) -> None:
+    """`ragged_bp_association` over the (agent, track, row) entries gives bitwise the
+    marginals of `association.bp_association` on the padded (n, F, W) batch — also where
+    NumPy sums pairwise: W = 1 (the track axis contiguous, F past 128) and W ≥ 8."""
+    from cooploc.association import bp_association
+    from cooploc.estimators.icp.ragged_association import ragged_bp_association, ragged_layout
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 6))
+    F = int(rng.choice([3, 40, 300]))
+    W = int(rng.choice([1, 1, 5, 11]))
+    known = rng.random((n, F)) < rng.uniform(0.2, 0.9)
+    known[0] = False                                               # an agent holding no track
+    n_rows = rng.integers(0, W + 1, n)
+    n_rows[-1] = 0 if n > 1 else n_rows[-1]                        # an agent with no row
+    mask = np.arange(W)[None] < n_rows[:, None]
+    log_l = rng.normal(-3.0, 5.0, (n, F, W))
+    log_l[rng.random((n, F, W)) < 0.1] = -np.inf                   # impossible pairings
+    log_missed = np.full((n, F), np.log(0.1))
+    log_clutter = np.log(1e-2) + rng.normal(0.0, 2.0, (n, W))
+    padded = bp_association(log_l, log_missed, log_clutter, 5, feature_mask=known, measurement_mask=mask)
+    ai, fk = np.nonzero(known)
+    pair, w = np.nonzero(mask[ai])
+    pair_start, entry_start = ragged_layout(ai, n_rows)
+    ragged = ragged_bp_association(log_l[ai[pair], fk[pair], w], log_missed[ai, fk], log_clutter,
+                                   pair_start, entry_start, n_rows, fk, F, 5)
+    a, k = ai[pair], fk[pair]
+    np.testing.assert_array_equal(ragged.feature, padded.feature[a, k, w])
+    np.testing.assert_array_equal(ragged.measurement, padded.measurement[a, w, k])
+    np.testing.assert_array_equal(ragged.missed, padded.missed[ai, fk])
+    np.testing.assert_array_equal(np.where(mask, ragged.clutter, 0.0), padded.clutter)
+
+
+def test_pairwise_sum_is_numpys(rng: np.random.Generator) -> None:
+    """The kernels' `_pairwise` adds in NumPy's order: bitwise `np.sum` for every length
+    (below 8, blocks of 8 up to 128, halves beyond), where a plain loop is not."""
+    from cooploc.estimators.icp._ragged_kernels import _pairwise
+
+    plain_differs = False
+    for length in [*range(1, 140), 255, 256, 257, 600, 1031]:
+        x = rng.random(length) * 10.0 ** rng.integers(-8, 8, length)
+        assert _pairwise(x, 0, length) == np.sum(x), length
+        plain_differs |= float(np.add.accumulate(x)[-1]) != np.sum(x)
+    assert plain_differs                                           # the test can tell the orders apart
+
+
+def test_block_kernels_equal_the_numpy_indexing(rng: np.random.Generator) -> None:
+    """`copy_copies` is `target[np.ix_(rows_to, cols_to)] = source[np.ix_(rows_from, cols_from)]`
+    and `reset_missing` is `block[~have] = 0`, bitwise."""
+    from cooploc.estimators.icp._block_kernels import copy_copies, reset_missing
+
+    source = rng.normal(size=(7, 9, 5))
+    rows_from, cols_from = np.array([6, 0, 3]), np.array([8, 2, 5, 1])
+    rows_to, cols_to = np.array([1, 2, 4]), np.array([0, 3, 6, 7])
+    target = rng.normal(size=(5, 8, 5))
+    expected = target.copy()
+    expected[np.ix_(rows_to, cols_to)] = source[np.ix_(rows_from, cols_from)]
+    copy_copies(source, rows_from, cols_from, target, rows_to, cols_to)
+    np.testing.assert_array_equal(target, expected)
+    have = rng.random((5, 8)) < 0.5
+    expected[~have] = 0.0
+    reset_missing(target, have)
+    np.testing.assert_array_equal(target, expected)
+
+
+def test_reindexed_copies_keep_their_values(rng: np.random.Generator) -> None:
+    """Re-indexing the track copies (agents leave and join, tracks come and go) keeps each
+    surviving (agent, track) copy and zeroes the new ones, also when it reuses memory."""
+    from cooploc.estimators.icp.gaussian_bp import _FeatureCopies
+
+    copies = _FeatureCopies(2)
+    layouts = [(np.array([1, 4, 7]), np.array([10, 20])), (np.array([1, 4, 7, 9]), np.array([10, 20, 30])),
+               (np.array([4, 9]), np.array([20, 30])), (np.array([2, 4, 9, 11]), np.array([5, 20, 30, 40]))]
+    for agents, ids in layouts:
+        before = {(int(a), int(f)): copies.block[i, j].copy()
+                  for i, a in enumerate(copies.agents) for j, f in enumerate(copies.ids)}
+        copies.reindex(agents, ids)
+        assert copies.block.shape == (agents.size, ids.size, 6)
+        for i, a in enumerate(agents):
+            for j, f in enumerate(ids):
+                np.testing.assert_array_equal(copies.block[i, j], before.get((int(a), int(f)), np.zeros(6)))
+        copies.block[...] = rng.normal(size=copies.block.shape)      # new values for the next layout
+        np.testing.assert_array_equal(copies.Lam[..., 1, 0], copies.block[..., 2])   # views of the block
+        np.testing.assert_array_equal(copies.eta, copies.block[..., 4:])

@@ -91,13 +91,21 @@ class GroupConsensus:
         G = self.members.shape[1]
         # the runs work on the members' blocks only, (M, r) in (agent, group) order
         self._member_slots = np.flatnonzero(self.members.reshape(-1))
-        self.edges, self.blocks = self._active_pairs(G)
-        self.slot = network.target[self.edges] * G + self.blocks                    # receiver (agent, group)
-        order = np.argsort(self.slot, kind="stable")
-        self.edges, self.blocks, self.slot = self.edges[order], self.blocks[order], self.slot[order]
-        self._to = np.searchsorted(self._member_slots, self.slot)                  # receiver's block
-        self._from = np.searchsorted(self._member_slots, network.source[self.edges] * G + self.blocks)
-        self._n_messages = int(np.unique(self.edges).size)
+        if members is None:
+            # one group of all: every link, in the network's order (by receiver already)
+            self.edges = np.arange(network.n_edges)
+            self.blocks = np.zeros(network.n_edges, dtype=np.int64)
+            self.slot = self._to = network.target
+            self._from = network.source
+            self._n_messages = network.n_edges
+        else:
+            self.edges, self.blocks = self._active_pairs(G)
+            self.slot = network.target[self.edges] * G + self.blocks                # receiver (agent, group)
+            order = np.argsort(self.slot, kind="stable")
+            self.edges, self.blocks, self.slot = self.edges[order], self.blocks[order], self.slot[order]
+            self._to = np.searchsorted(self._member_slots, self.slot)              # receiver's block
+            self._from = np.searchsorted(self._member_slots, network.source[self.edges] * G + self.blocks)
+            self._n_messages = int(np.unique(self.edges).size)
         self._weights: FloatArray | None = None
         self._leader: np.ndarray | None = None
 
@@ -245,7 +253,7 @@ def network_sum(network: Network, values: npt.ArrayLike, n_iterations: int,
 
 
 def flood(network: Network, have: _Mask, payload: np.ndarray | int, n_rounds: int,
-          priority: npt.ArrayLike, accept: _Mask | None = None
+          priority: npt.ArrayLike, accept: _Mask | None = None, overwrite: bool = False
           ) -> tuple[_Mask, np.ndarray | None, np.ndarray]:
     """Spread blocks to the agents that lack them (module doc).
 
@@ -258,6 +266,9 @@ def flood(network: Network, have: _Mask, payload: np.ndarray | int, n_rounds: in
     n_rounds : forwarding rounds (blocks travel at most this many hops).
     priority : (n, G) integers ranking the copies; higher wins where copies meet.
     accept : (n,) the agents that take copies (None: all); nothing is sent to the others.
+    overwrite : the received copies are written into `payload` itself (a float array),
+        which is then the payload returned, instead of into a copy of it: for callers
+        that replace their copies anyway (a city's (n, G, ...) copy is costly).
 
     Returns
     -------
@@ -267,7 +278,7 @@ def flood(network: Network, have: _Mask, payload: np.ndarray | int, n_rounds: in
     _check_iterations(n_rounds)
     have = np.array(have, dtype=bool, copy=True)
     carried = not isinstance(payload, (int, np.integer))
-    payload = np.array(payload, copy=True) if carried else int(payload)
+    payload = np.array(payload, copy=not overwrite) if carried else int(payload)
     priority = np.array(np.broadcast_to(priority, have.shape), dtype=np.int64, copy=True)
     fresh = have.copy()                                         # blocks to forward this round
     into = (np.ones(network.n_edges, dtype=bool) if accept is None

@@ -14,9 +14,11 @@ Algorithm per step, at every agent i, before the Gaussian BPA-L of `icp`:
    (`registration`, on by default) it is b_i^(0) after i has located itself against
    the tracks it holds from all its rows jointly, without row ℓ itself
    (`cooploc.estimators.icp.registration`), and b_i^(0) where that finds nothing;
-2. BPA-DA (14)–(17), P iterations over the tracks i holds (`association.bp_association`,
-   Williams & Lau), batched over agents; the new-feature hypothesis takes the role of
-   clutter, with intensity `new_feature_intensity`;
+2. BPA-DA (14)–(17), P iterations over the tracks i holds (the iterations of
+   `association.bp_association`, Williams & Lau), over the (agent, track, row) entries
+   only (`ragged_association`: bitwise the padded batch, without its padding); the
+   new-feature hypothesis takes the role of clutter, with intensity
+   `new_feature_intensity`;
 3. (30) a track with b(α = 0) < η_TH is detected and paired with its most probable
    row; a row wanted by two tracks goes to the more probable pairing;
 4. births: an unclaimed row whose new-feature probability is at least ½ starts a
@@ -46,9 +48,10 @@ made — 3 % of the rows, and 37 of the 92 rows of vehicles whose prior was wide
 `icp`'s 0.64 m; with the registration 0.64 m (docs/icp.md, "What the association
 sees"). `registration = False` gives the paper's (13).
 
-Cost per step and agent: O(P F W) for the BPA-DA over F tracks and W rows, O(H W F)
-for the registration (H pivot pairs, at most F W), O(C log C + pairs within the gate)
-for grouping C birth candidates, then that of `icp`.
+Cost per step and agent: O(P F_i W_i) for the BPA-DA over the F_i tracks agent i holds
+and its W_i rows, O(H W K) for the registration (H pivot pairs, at most F_i W_i; W and K
+the most rows and held tracks of any agent), O(C log C + pairs within the gate) for
+grouping C birth candidates, then that of `icp`. Measured: docs/icp.md, "Cost per step".
 """
 
 from __future__ import annotations
@@ -58,17 +61,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from cooploc.association import (
-    AssociationMarginals,
-    association_weights,
-    bp_association,
-    gated_pairs,
-    padded_groups,
-    pair_components,
-)
+from cooploc.association import association_weights, gated_pairs, padded_groups, pair_components
 from cooploc.consensus import flood
 from cooploc.errors import ConfigError
 from cooploc.estimators.icp.gaussian_bp import ICP, ICPParams
+from cooploc.estimators.icp.ragged_association import RaggedMarginals, ragged_bp_association, ragged_layout
 from cooploc.estimators.icp.registration import register_vehicles
 from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf
 from cooploc.network import Network
@@ -118,18 +115,30 @@ class ICPDALCParams(ICPParams):
 
 @dataclass(frozen=True)
 class _Association:
-    """BPA-DA output of all agents: rows (n, W) padded by `mask`, tracks held (n, F),
-    marginals (None when there was nothing to associate), each row's new-feature
-    probability (n, W), and the vehicle belief each row was associated with."""
+    """BPA-DA output of all agents: rows (n, W) padded by `mask`; the pairs (agent, track)
+    of the tracks each agent holds (`pair_agent`, `pair_track`, (P,), in agent then track
+    order) and their entries (pair, row slot) (`entry_pair`, `entry_row`, (E,)), stored
+    flat (`ragged_association`); the marginals (None when there was nothing to
+    associate); each row's new-feature probability (n, W); and the vehicle belief each
+    row was associated with."""
 
     row_of: IntArray
     mask: np.ndarray
-    known: np.ndarray
-    marginals: AssociationMarginals | None
+    pair_agent: IntArray
+    pair_track: IntArray
+    entry_pair: IntArray
+    entry_row: IntArray
+    marginals: RaggedMarginals | None
     p_new: FloatArray
-    log_likelihood: FloatArray | None = None      # (n, F, W) log η(α = ℓ) of eq. (13)
+    log_likelihood: FloatArray | None = None      # (E,) log η(α = ℓ) of eq. (13) of each entry
     beliefs: Gaussians | None = None              # (n, W) the vehicle belief of each row's (13)
     registered: np.ndarray | None = None          # (n,) vehicles registered (`registration`)
+
+    def entries(self, values: FloatArray) -> FloatArray:
+        """Values of the entries (E,) as (P, W), zero where a pair's agent has no such row."""
+        out = np.zeros((self.pair_agent.size, self.mask.shape[1]))
+        out[self.entry_pair, self.entry_row] = values
+        return out
 
 
 @register_estimator
@@ -166,16 +175,16 @@ class ICPDALC(ICP):
             # (30): a detected track (b(α = 0) < η_TH) takes its most probable row; a row
             # wanted by two tracks goes to the more probable pairing
             m = da.marginals
-            best = m.feature.argmax(axis=2)                                  # (n, F)
-            p_best = np.take_along_axis(m.feature, best[..., None], 2)[..., 0]
-            detected = da.known & (m.missed < p.threshold) & (p_best > 0)
-            ai, fk = np.nonzero(detected)
-            order = np.lexsort((-p_best[ai, fk], best[ai, fk], ai))
-            ai, fk = ai[order], fk[order]
+            feature = da.entries(m.feature)                                  # (P, W)
+            best = feature.argmax(axis=1)
+            p_best = feature[np.arange(best.size), best]
+            q = np.flatnonzero((m.missed < p.threshold) & (p_best > 0))      # in (agent, track) order
+            ai, fk, w, p_q = da.pair_agent[q], da.pair_track[q], best[q], p_best[q]
+            order = np.lexsort((-p_q, w, ai))
+            ai, fk, w = ai[order], fk[order], w[order]
             first = np.ones(ai.size, dtype=bool)
-            first[1:] = (ai[1:] != ai[:-1]) | (best[ai[1:], fk[1:]] != best[ai[:-1], fk[:-1]])
-            ai, fk = ai[first], fk[first]
-            w = best[ai, fk]
+            first[1:] = (ai[1:] != ai[:-1]) | (w[1:] != w[:-1])
+            ai, fk, w = ai[first], fk[first], w[first]
             track[da.row_of[ai, w]] = self.features.ids[fk]
             claimed[ai, w] = True
         candidate = da.mask & ~claimed & (da.p_new >= 0.5)
@@ -188,7 +197,8 @@ class ICPDALC(ICP):
         return track, info
 
     def _bpa_da(self, v2f: Batch, prior: Gaussians, network: Network) -> _Association:
-        """BPA-DA (13)–(17) of every agent over the tracks it holds, batched over agents."""
+        """BPA-DA (13)–(17) of every agent over the tracks it holds and its own rows: over
+        the (agent, track, row) entries only (`ragged_association`)."""
         p = self.params
         n = network.n_agents
         rows = np.flatnonzero(np.isin(v2f.sensor, network.agents))
@@ -196,48 +206,58 @@ class ICPDALC(ICP):
         index, mask = padded_groups(owner, n)                     # (n, W) rows of each agent
         row_of = rows[index]
         copies = self.features
-        known = copies.known()                                     # (n, F) tracks each agent holds
+        ai, fk = np.nonzero(copies.known())                        # pairs: the tracks each agent holds
+        pair, wi = np.nonzero(mask[ai])                            # entries: each pair × its agent's rows
         W = index.shape[1]
         beliefs = Gaussians(np.repeat(prior.mean[:, None], W, 1), np.repeat(prior.cov[:, None], W, 1))
         if not copies.ids.size or not W:
-            return _Association(row_of, mask, known, None, np.ones(index.shape), beliefs=beliefs)
-        ai, fk = np.nonzero(known)
+            return _Association(row_of, mask, ai, fk, pair, wi, None, np.ones(index.shape), beliefs=beliefs)
         tracks = from_information(copies.Lam[ai, fk], copies.eta[ai, fk])
-        log_l = self._log_eta(v2f, beliefs, tracks, ai, fk, row_of, mask, known.shape[1])
+        log_l = self._log_eta(v2f, beliefs, tracks, ai[pair], pair, wi, row_of)
         registered = np.zeros(n, dtype=bool)
         if p.registration:
-            # each vehicle locates itself against the tracks it holds (module docstring)
-            held_mean = np.zeros((*known.shape, self.d))
-            held_cov = np.zeros((*known.shape, self.d, self.d))
-            held_mean[ai, fk], held_cov[ai, fk] = tracks.mean, tracks.cov
+            # each vehicle locates itself against the tracks it holds (module docstring),
+            # these stored (n, K) for the K tracks the busiest agent holds, not all F
+            slots, held = padded_groups(ai, n)
+            rank = np.arange(ai.size) - np.searchsorted(ai, ai)          # slot of each pair
+            held_mean = np.where(held[..., None], tracks.mean[slots], 0.0)
+            held_cov = np.where(held[..., None, None], tracks.cov[slots], 0.0)
+            held_log_l = np.full((*held.shape, W), -np.inf)
+            held_log_l[ai[pair], rank[pair], wi] = log_l
             z = np.where(mask[..., None], v2f.z[row_of], 0.0)
             R = np.where(mask[..., None, None], v2f.cov[row_of], np.eye(self.d))
-            reg = register_vehicles(prior, z, R, mask, Gaussians(held_mean, held_cov), known, log_l,
+            reg = register_vehicles(prior, z, R, mask, Gaussians(held_mean, held_cov), held, held_log_l,
                                     p.detection_probability, p.new_feature_intensity, self._position,
                                     self._sensing_range)
             registered = reg.registered
             if registered.any():
+                # (13) again where the belief changed: the entries of registered vehicles
                 beliefs = reg.beliefs
-                log_l = self._log_eta(v2f, beliefs, tracks, ai, fk, row_of, mask, known.shape[1])
-        log_psi, log_missed, log_new = association_weights(log_l, p.detection_probability,
-                                                           p.new_feature_intensity)
-        marginals = bp_association(log_psi, log_missed, log_new, p.da_iterations,       # (14)–(17)
-                                   feature_mask=known, measurement_mask=mask)
-        return _Association(row_of, mask, known, marginals, marginals.clutter, log_l, beliefs, registered)
+                redo = np.flatnonzero(registered[ai[pair]])
+                log_l[redo] = self._log_eta(v2f, beliefs, tracks, ai[pair[redo]], pair[redo], wi[redo],
+                                            row_of)
+        # the weights of (14)–(17): entries as one (1, E) block, one miss weight for every pair
+        log_psi, log_missed, _ = association_weights(log_l[None], p.detection_probability,
+                                                     p.new_feature_intensity)
+        log_new = np.full(mask.shape, np.log(p.new_feature_intensity))
+        n_rows = mask.sum(axis=1)
+        pair_start, entry_start = ragged_layout(ai, n_rows)
+        marginals = ragged_bp_association(log_psi[0], np.broadcast_to(log_missed, ai.shape), log_new,
+                                          pair_start, entry_start, n_rows, fk, copies.ids.size,
+                                          p.da_iterations)
+        return _Association(row_of, mask, ai, fk, pair, wi, marginals, marginals.clutter, log_l, beliefs,
+                            registered)
 
     @staticmethod
-    def _log_eta(v2f: Batch, beliefs: Gaussians, tracks: Gaussians, ai: IntArray, fk: IntArray,
-                 row_of: IntArray, mask: np.ndarray, F: int) -> FloatArray:
-        """(13): log η(α = ℓ) = log N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), Gaussian beliefs, for
-        the tracks (ai, fk) each agent holds and its own rows only (−inf elsewhere); the
-        vehicle belief (m_i, P_i) of each row from `beliefs` (n, W)."""
-        pair, wi = np.nonzero(mask[ai])                             # (agent, track) pair × its rows
-        a, f, rows = ai[pair], fk[pair], row_of[ai[pair], wi]
+    def _log_eta(v2f: Batch, beliefs: Gaussians, tracks: Gaussians, a: IntArray, pair: IntArray,
+                 wi: IntArray, row_of: IntArray) -> FloatArray:
+        """(13): log η(α = ℓ) = log N(z_ℓ; m_k − m_i, R_ℓ + P_i + P_k), Gaussian beliefs, of
+        each entry (agent a, track pair, row slot wi) (E,); the track's belief `tracks[pair]`,
+        the vehicle belief (m_i, P_i) of each row from `beliefs` (n, W)."""
+        rows = row_of[a, wi]
         rel = tracks.mean[pair] - beliefs.mean[a, wi]
         S = v2f.cov[rows] + beliefs.cov[a, wi] + tracks.cov[pair]
-        log_l = np.full((mask.shape[0], F, mask.shape[1]), -np.inf)  # (n, F, W)
-        log_l[a, f, wi] = gaussian_logpdf(v2f.z[rows] - rel, S)
-        return log_l
+        return gaussian_logpdf(v2f.z[rows] - rel, S)
 
     def _births(self, k: int, network: Network, beliefs: Gaussians, v2f: Batch,
                 row_of: IntArray, candidate: np.ndarray) -> tuple[IntArray, FloatArray, FloatArray]:

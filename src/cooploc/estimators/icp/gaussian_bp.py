@@ -91,7 +91,9 @@ BPA-L iterations (default 10), and how an agent learns the number of vehicles th
 consensus average must be multiplied by — here the leader-ratio consensus, which
 needs no count.
 
-Cost per step and agent: O(N_iter N_cons F d²) for F features in view, d = 4.
+Cost per step and agent: O(N_iter N_cons F d²) for F features in view, d = 4. Every
+agent keeps a copy slot for every track of the network ((n, F) blocks, `_FeatureCopies`),
+re-indexed and flooded in place each step (docs/icp.md, "Cost per step").
 `info` holds `messages` and `bytes` sent over V2V this step, `bpa_iterations`.
 Derivation of the messages for singular beliefs: docs/icp.md.
 """
@@ -178,27 +180,50 @@ def _psd(M: FloatArray) -> FloatArray:
 
 
 class _FeatureCopies:
-    """Each agent's copy of every feature belief, information form: Λ (n, F, d, d), η (n, F, d)."""
+    """Each agent's copy of every feature belief, information form, in one block per copy:
+    `block` (n, F, d² + d) holds Λ (n, F, d, d) and η (n, F, d), which are views of it, so
+    that the copies are flooded and reset in place (no (n, F) temporaries per step).
+    Re-indexing (agents come and go every step) writes into the memory of the block it
+    replaced two re-indexings before when that is large enough: touching fresh memory
+    for a city's block cost more than the copy itself."""
 
     def __init__(self, d: int) -> None:
         self.d = d
         self.agents: IntArray = np.zeros(0, dtype=np.int64)
         self.ids: IntArray = np.zeros(0, dtype=np.int64)
-        self.Lam = np.zeros((0, 0, d, d))
-        self.eta = np.zeros((0, 0, d))
+        self.block = np.zeros((0, 0, d * d + d))
+        self._spare = np.zeros(0)                    # flat memory for the next re-indexing
+
+    @property
+    def Lam(self) -> FloatArray:
+        """Λ (n, F, d, d), a view: writing into it writes the copies."""
+        n, F, _ = self.block.shape
+        return self.block[..., : self.d * self.d].reshape(n, F, self.d, self.d)
+
+    @property
+    def eta(self) -> FloatArray:
+        """η (n, F, d), a view."""
+        return self.block[..., self.d * self.d:]
 
     def reindex(self, agents: IntArray, ids: IntArray) -> None:
         """Rows for `agents`, columns for feature `ids`; new ones start with zero information."""
-        Lam = np.zeros((agents.size, ids.size, self.d, self.d))
-        eta = np.zeros((agents.size, ids.size, self.d))
+        if np.array_equal(agents, self.agents) and np.array_equal(ids, self.ids):
+            return
+        from cooploc.estimators.icp._block_kernels import copy_copies  # numba, on use
+
+        shape = (agents.size, ids.size, self.block.shape[2])
+        size = int(np.prod(shape))
+        if self._spare.size < size:                  # room for some growth of the traffic
+            self._spare = np.empty(size + size // 4)
+        block = self._spare[:size].reshape(shape)
+        block.fill(0.0)
         ia = np.flatnonzero(np.isin(agents, self.agents))
         ja = np.searchsorted(self.agents, agents[ia])
         jf = np.flatnonzero(np.isin(ids, self.ids))
         kf = np.searchsorted(self.ids, ids[jf])
-        if ia.size and jf.size:
-            Lam[np.ix_(ia, jf)] = self.Lam[np.ix_(ja, kf)]
-            eta[np.ix_(ia, jf)] = self.eta[np.ix_(ja, kf)]
-        self.agents, self.ids, self.Lam, self.eta = agents, ids, Lam, eta
+        copy_copies(self.block, ja, kf, block, ia, jf)
+        self._spare = self.block.base if self.block.base is not None else self.block.reshape(-1)
+        self.agents, self.ids, self.block = agents, ids, block
 
     def known(self) -> np.ndarray:
         """(n, F) which copies hold any information."""
@@ -303,19 +328,18 @@ class ICP:
         copies = self.features
         if not joined.any() or not copies.ids.size or not network.n_edges:
             return
-        n, F, d = copies.Lam.shape[0], copies.ids.size, self.d
-        payload = np.concatenate([copies.Lam.reshape(n, F, d * d), copies.eta], axis=2)
+        from cooploc.estimators.icp._block_kernels import reset_missing  # numba, on use
+
+        n, F = copies.block.shape[:2]
         owner = np.broadcast_to(network.agents[:, None], (n, F))
-        have, payload, _ = flood(network, copies.known(), payload, 1, owner, accept=joined)
-        copies.Lam = np.where(have[..., None, None], payload[..., : d * d].reshape(n, F, d, d), 0.0)
-        copies.eta = np.where(have[..., None], payload[..., d * d:], 0.0)
+        have, _, _ = flood(network, copies.known(), copies.block, 1, owner, accept=joined, overwrite=True)
+        reset_missing(copies.block, have)
 
     def _bpa_l(self, network: Network, agents: IntArray, prior: Gaussians, v2f: Batch | None,
                rows: IntArray, slot_ids: IntArray) -> tuple[Gaussians, int]:
         """BPA-L (19)–(22) until estimates settle; returns the vehicles' posterior and iterations."""
         if rows.size == 0:
-            self._share_tracks(network, self.features.Lam, self.features.eta,
-                               np.zeros(self.features.Lam.shape[:2], dtype=bool))
+            self._share_tracks(network, np.zeros(self.features.block.shape[:2], dtype=bool))
             return prior, 0
         p = self.params
         n, F, d = agents.size, self.features.ids.size, self.d
@@ -373,31 +397,34 @@ class ICP:
             still = everyone.maximum(moved.astype(np.int64))
             if not still.any():
                 break
-        Lam = np.zeros((n, F, d, d))
-        eta = np.zeros((n, F, d))
-        Lam[ma, mf] = symmetrize(first_Lam)
-        eta[ma, mf] = np.einsum("mij,mj->mi", Lam[ma, mf], self._feature_means(feat_Lam, feat_eta))
-        self._share_tracks(network, Lam, eta, senses)
+        shared_Lam = symmetrize(first_Lam)
+        self.features.Lam[ma, mf] = shared_Lam
+        shared_mean = self._feature_means(feat_Lam, feat_eta)
+        self.features.eta[ma, mf] = np.einsum("mij,mj->mi", shared_Lam, shared_mean)
+        self._share_tracks(network, senses)
         return from_information(Lam_v, eta_v), iterations
 
-    def _share_tracks(self, network: Network, Lam: FloatArray, eta: FloatArray, senses: np.ndarray) -> None:
+    def _share_tracks(self, network: Network, senses: np.ndarray) -> None:
         """The agents near a feature sensed this step get its new belief; the rest are reset.
 
-        The members of a feature's group hold its consensus belief; it is flooded
+        The members of a feature's group (`senses` (n, F)) hold its consensus belief, which
+        the caller has written into their copies (the other copies' contents do not
+        matter: each is overwritten by a copy it receives, or reset). It is flooded
         (`consensus.flood`, `share_hops` rounds, the highest-id member's copy wins) to the
         agents around, who need it to associate their detections later. A feature that
         nobody in an agent's reach sensed is reset to uniform there (paper §IV-B): its
         column is dropped once no agent holds it.
         """
-        n, F, d = Lam.shape[0], Lam.shape[1], self.d
-        payload = np.concatenate([Lam.reshape(n, F, d * d), eta], axis=2)
+        from cooploc.estimators.icp._block_kernels import reset_missing  # numba, on use
+
+        copies = self.features
+        n, F = copies.block.shape[:2]
         owner = np.broadcast_to(network.agents[:, None], (n, F))
-        have, payload, _ = flood(network, senses, payload, self.params.share_hops, owner)
-        self.features.Lam = np.where(have[..., None, None], payload[..., : d * d].reshape(n, F, d, d), 0.0)
-        self.features.eta = np.where(have[..., None], payload[..., d * d:], 0.0)
+        have, _, _ = flood(network, senses, copies.block, self.params.share_hops, owner, overwrite=True)
+        reset_missing(copies.block, have)
         keep = have.any(axis=0)
         if not keep.all():
-            self.features.reindex(self.features.agents, self.features.ids[keep])
+            copies.reindex(copies.agents, copies.ids[keep])
 
     def _moved(self, now: FloatArray, before: FloatArray) -> np.ndarray:
         """Whether an estimate moved more than the tolerances (…, d) → (…,)."""

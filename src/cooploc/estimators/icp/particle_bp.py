@@ -138,8 +138,7 @@ class ICPDAPF(ICPDALC):
         if v2f is not None and len(v2f) and agents.size:
             posterior, iterations = self._particle_step(frame, v2f, prior, network, info)
         else:
-            self._share_tracks(network, self.features.Lam, self.features.eta,
-                               np.zeros(self.features.Lam.shape[:2], dtype=bool))
+            self._share_tracks(network, np.zeros(self.features.block.shape[:2], dtype=bool))
         info.update(network.counters())
         info["bpa_iterations"] = iterations
         vehicles = checked_states(self.name, "vehicle", agents, posterior.mean, posterior.cov)
@@ -150,14 +149,17 @@ class ICPDAPF(ICPDALC):
         p = self.params
         da = self._bpa_da(v2f, prior, network)
         n, W = da.mask.shape
-        F = self.features.ids.size
         # soft pairings (18): agent i, track k, row w with P(α_ik = w) ≥ min_association
         if da.marginals is not None:
-            feat_p = np.where(da.known[..., None] & da.mask[:, None, :], da.marginals.feature, 0.0)
-            pi, pk, pw = np.nonzero(feat_p >= max(p.min_association, 1e-300))
-            p_assoc = feat_p[pi, pk, pw]
-            log_eta = da.log_likelihood[pi, pk, pw]
-            claimed = da.marginals.measurement.max(axis=2, initial=0.0) >= 0.5
+            m = da.marginals
+            soft = np.flatnonzero(m.feature >= max(p.min_association, 1e-300))  # (agent, track, row) order
+            pair = da.entry_pair[soft]
+            pi, pk, pw = da.pair_agent[pair], da.pair_track[pair], da.entry_row[soft]
+            p_assoc = m.feature[soft]
+            log_eta = da.log_likelihood[soft]
+            most = np.zeros((n, W))                                   # max_k P(b_m = k) of each row
+            np.maximum.at(most, (da.pair_agent[da.entry_pair], da.entry_row), m.measurement)
+            claimed = most >= 0.5
         else:
             pi = pk = pw = np.zeros(0, dtype=np.int64)
             p_assoc = log_eta = np.zeros(0)
@@ -167,11 +169,14 @@ class ICPDAPF(ICPDALC):
         # the MAP origin of each row, for association accuracy
         track = np.full(len(v2f), -1, dtype=np.int64)
         if da.marginals is not None:
-            meas = da.marginals.measurement                        # (n, W, F)
-            best = meas.argmax(axis=2) if F else np.zeros((n, W), dtype=np.int64)
-            p_best = np.take_along_axis(meas, best[..., None], 2)[..., 0] if F else np.zeros((n, W))
-            take = da.mask & (p_best > da.p_new)
-            track[da.row_of[take]] = self.features.ids[best[take]]
+            # each row's most probable track (the first in track order among equals)
+            meas = da.marginals.measurement
+            ea, ek = da.pair_agent[da.entry_pair], da.pair_track[da.entry_pair]
+            key = ea * W + da.entry_row
+            order = np.lexsort((ek, -meas, key))
+            first = order[np.r_[True, key[order[1:]] != key[order[:-1]]]] if order.size else order
+            take = first[meas[first] > da.p_new[ea[first], da.entry_row[first]]]
+            track[da.row_of[ea[take], da.entry_row[take]]] = self.features.ids[ek[take]]
         track[da.row_of[candidate]] = births
         info["v2f_track"] = track
         info["v2f_discarded"] = int((da.mask & ~claimed & ~candidate & ~(track[da.row_of] >= 0)).sum())
@@ -189,7 +194,7 @@ class ICPDAPF(ICPDALC):
         blk_p = np.concatenate([p_assoc, np.ones(ci.size)])
         blk_log_eta = np.concatenate([log_eta, np.zeros(ci.size)])
         if blk_i.size == 0:
-            self._share_tracks(network, self.features.Lam, self.features.eta, np.zeros((n, F), dtype=bool))
+            self._share_tracks(network, np.zeros((n, F), dtype=bool))
             return prior, 0
         pair_key, blk_pair = np.unique(blk_i * F + blk_k, return_inverse=True)
         pair_i, pair_k = pair_key // F, pair_key % F
@@ -285,10 +290,8 @@ class ICPDAPF(ICPDALC):
         v_mean, v_cov = weighted_moments(vehicles)
         f_mean, f_cov = weighted_moments(features)
         f_Lam, f_eta = to_information(Gaussians(f_mean, f_cov))
-        Lam = np.zeros((n, F, d, d))
-        eta = np.zeros((n, F, d))
-        Lam[pair_i, pair_k], eta[pair_i, pair_k] = f_Lam, f_eta
-        self._share_tracks(network, Lam, eta, members)
+        self.features.Lam[pair_i, pair_k], self.features.eta[pair_i, pair_k] = f_Lam, f_eta
+        self._share_tracks(network, members)
         return Gaussians(v_mean, v_cov), iterations
 
 
