@@ -6,7 +6,8 @@ GNSS fix and its anonymous, shuffled V2F detections z_m = H f_k − H x_s + w (e
 to the RSU, which runs loopy BP on the factor graph of eq. (9) (Fig. 2), one time step
 after the other (filtering), on particle beliefs (§IV-B, N_p per state). Per step:
 prediction (10)–(11); measurement evaluation (14) from the kernel over all particle
-pairs (`particles.pair_kernel`, computed once, reused); data association (15)–(20) by
+pairs (`rsu_bp.kernel`: computed once, reused; in the separable form one exponential per
+pair of a vehicle's and a feature's particles, whatever the rows); data association (15)–(20) by
 `association.bp_association`; I iterations of measurement correction (21)–(24);
 beliefs (25)–(26) as log-weights, resampled when N_eff < `resample_threshold` · N_p.
 BP beliefs drop the vehicle–feature correlation that `oracle-kf` keeps, so rsu-bp stays
@@ -43,7 +44,6 @@ from cooploc.estimators.rsu_bp.kernel import (
     SeparableKernel,
     log_column_sums,
     log_row_sums,
-    pair_kernel_row_sums,
 )
 from cooploc.estimators.rsu_bp.tracking import FeatureTracker
 from cooploc.estimators.rsu_bp.vehicles import draw, moments, posterior_samples
@@ -54,6 +54,7 @@ from cooploc.particles import (
     effective_sample_size,
     log_sum_exp,
     normalize_log_weights,
+    pair_kernel,
     pair_kernel_log_sum,
     propagate_linear,
     resample,
@@ -459,10 +460,9 @@ class RsuBP:
                                               np.exp(log_wx)[s_b], self._buffer(n_values))
             over_x, over_f = G.log_sum_over_second, G.log_sum_over_first
         elif store:
-            # the kernel, and β's sums over the vehicle particles from the same pass
-            G, log_lx = pair_kernel_row_sums(z_b, cov_b, a_b, c_b, np.exp(log_wx)[s_b],
-                                             self._buffer(n_values))
+            G = pair_kernel(z_b, cov_b, a_b, c_b, self._buffer(n_values))
             over_x, over_f = partial(log_row_sums, G), partial(log_column_sums, G)
+            log_lx = over_x(np.exp(log_wx)[s_b])
         else:
             def over_x(weights: FloatArray) -> FloatArray:      # log Σ_l w_{b,l} G[b, j, l]
                 return pair_kernel_log_sum(z_b, cov_b, a_b, c_b, weights)

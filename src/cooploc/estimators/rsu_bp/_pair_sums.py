@@ -21,9 +21,9 @@ import numba
 import numpy as np
 
 from cooploc._expf import exp_inplace
-from cooploc._particle_kernels import quadratic_row, row_min
+from cooploc._particle_kernels import row_min
 
-__all__ = ["column_sums", "kernel_matrix_row_sums", "row_sums", "separable_columns", "separable_rows"]
+__all__ = ["column_sums", "row_sums", "separable_columns", "separable_rows"]
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
@@ -53,30 +53,6 @@ def column_sums(values: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
                 acc[l] += wj * np.float64(values[b, j, l])
         for l in range(Nl):
             out[b, l] = acc[l]
-
-
-@numba.njit(parallel=True, fastmath=True, cache=True)
-def kernel_matrix_row_sums(u: np.ndarray, vt: np.ndarray, w: np.ndarray, out: np.ndarray,
-                           shift: np.ndarray, sums: np.ndarray) -> None:
-    """`cooploc._particle_kernels.kernel_matrix` (the same values, bit for bit) and, while
-    each row is in cache, sums[b, j] = Σ_l w[b, l] out[b, j, l] in float64."""
-    B, Nj = u.shape[0], u.shape[1]
-    Nl = vt.shape[2]
-    half = np.float32(0.5)
-    for bj in numba.prange(B * Nj):
-        b = bj // Nj
-        j = bj - b * Nj
-        row = out[b, j]
-        quadratic_row(u, vt, b, j, row)
-        q_min = row_min(row)
-        shift[b, j] = -0.5 * q_min
-        for l in range(Nl):
-            row[l] = -half * (row[l] - q_min)
-        exp_inplace(row)
-        acc = 0.0
-        for l in range(Nl):
-            acc += w[b, l] * np.float64(row[l])
-        sums[b, j] = acc
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)

@@ -34,10 +34,10 @@ as logs. Two ways to compute them, the same numbers up to rounding:
   (vehicle, feature), BLAS matrix products for the sums — and S K N_p² float64 stored.
 
 - **Direct form** (rows with different covariances): `particles.pair_kernel`, one
-  float32 exponential per pair of every block, stored (B N_p² float32), with β's sums
-  accumulated in the pass that computes it (`kernel_matrix_row_sums`) and the later sums
-  by one float64 pass over the stored values (`row_sums`, `column_sums` in
-  `rsu_bp._pair_sums`, compiled on first use).
+  float32 exponential per pair of every block, stored (B N_p² float32), and the sums by
+  one float64 pass over the stored values (`log_row_sums`, `log_column_sums`).
+
+The compiled loops are in `rsu_bp._pair_sums` (numba, imported on first use).
 
 The direct form rounds each kernel value to float32 (relative 6·10⁻⁸ of its row's
 largest); the separable one is exact to float64 rounding of the exponents (absolute
@@ -51,10 +51,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cooploc.particles import PairKernel, _whiten, pair_kernel_log_sum
+from cooploc.particles import PairKernel, pair_kernel_log_sum
 from cooploc.types import FloatArray, IntArray
 
-__all__ = ["TINY", "SeparableKernel", "log_column_sums", "log_row_sums", "pair_kernel_row_sums"]
+__all__ = ["TINY", "SeparableKernel", "log_column_sums", "log_row_sums"]
 
 #: a scaled sum below this may hold terms that underflowed or lost precision in float32
 #: (each below 1.5e-45): its block is summed directly instead
@@ -169,27 +169,6 @@ class SeparableKernel:
             out[redo] = pair_kernel_log_sum(-self.z[redo], self.cov[redo], self.c[redo], self.a[redo],
                                             weights[redo])
         return out
-
-
-def pair_kernel_row_sums(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray,
-                         weights: FloatArray, buffer: np.ndarray) -> tuple[PairKernel, FloatArray]:
-    """`particles.pair_kernel(z, cov, a, c, buffer)` (the same values, bit for bit) and
-    log Σ_l w[b, l] G[b, j, l] (B, N_j), summed in the pass that computes the kernel.
-
-    `buffer` holds at least B N_j N_l float32 values; weights (B, N_l) ≥ 0.
-    """
-    from cooploc.estimators.rsu_bp._pair_sums import kernel_matrix_row_sums
-
-    u, vt, log_norm = _whiten(z, cov, a, c)
-    shape = (u.shape[0], u.shape[1], vt.shape[2])
-    values = buffer[:shape[0] * shape[1] * shape[2]].reshape(shape)
-    shift, sums = np.zeros(shape[:2]), np.zeros(shape[:2])
-    if values.size:
-        kernel_matrix_row_sums(u.astype(np.float32), vt.astype(np.float32),
-                               np.ascontiguousarray(weights, dtype=float), values, shift, sums)
-    G = PairKernel(values, log_norm[:, None] + shift)
-    with np.errstate(divide="ignore"):
-        return G, G.log_scale + np.log(sums)
 
 
 def log_row_sums(G: PairKernel, weights: FloatArray) -> FloatArray:
