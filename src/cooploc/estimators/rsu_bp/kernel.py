@@ -17,21 +17,23 @@ as logs. Two ways to compute them, the same numbers up to rounding:
       α_bj = −½‖ζ_b − A_j‖²,  γ_bl = −½‖C_l‖² − ζ_b·C_l,  x_jl = A_j·C_l,
 
   where n_s is the Gaussian's normaliser. Only x depends on both particles, and not on
-  the row: E = exp(x − max_l x) is computed once per (vehicle, feature) — N_p² float64
-  exponentials instead of M N_p², with M the vehicle's rows — and the sums over either
-  index are matrix products of E with row- or column-weights that carry α, γ and the
-  weights in the log domain, each scaled by its largest entry:
+  the row: E = exp(x − max_l x) is computed once per (vehicle, feature) — N_p²
+  exponentials instead of M N_p², with M the vehicle's rows (x − max_l x in float64,
+  rounded to float32, then `cooploc._expf.exp_inplace`: glibc's `expf`, vectorized) —
+  and the sums over either index are products of E with weights that carry α, γ and
+  the message weights in the log domain, each scaled by its largest entry:
 
       log Σ_l w_bl G[b, j, l] = log n_s + α_bj + r_j + h_b + log Σ_l E_jl e^{log w_bl + γ_bl − h_b},
       log Σ_j w_bj G[b, j, l] = log n_s + γ_bl + H_b + log Σ_j e^{log w_bj + α_bj + r_j − H_b} E_jl,
 
-  with r_j = max_l x_jl and h_b, H_b the largest exponents in the sums. Every factor is
-  ≤ 1 and every term positive, so a sum is exact to float64 rounding unless it falls
-  below `TINY`, where terms that underflowed could matter (far from the particles'
-  centres, e.g. broad beliefs against a precise W): those blocks are summed again by
-  the direct float64 kernel (`particles.pair_kernel_log_sum`).
+  with r_j = max_l x_jl and h_b, H_b the largest exponents in the sums, accumulated in
+  float64 (`separable_rows` — which fills E and gives β's sums while a row of E is in
+  cache — and `separable_columns`). Every factor is ≤ 1 and every term positive, so a
+  sum carries only the float32 rounding of E, unless it falls below `TINY`: then terms
+  that underflowed in E (beliefs very broad against a precise W) could matter, and the
+  block is summed again by the direct float64 kernel (`particles.pair_kernel_log_sum`).
   Cost per step: O(S K N_p² (d + M)) — one exponential per particle pair of each
-  (vehicle, feature), BLAS matrix products for the sums — and S K N_p² float64 stored.
+  (vehicle, feature), M multiply–adds per pair for each sum — and S K N_p² float32 stored.
 
 - **Direct form** (rows with different covariances): `particles.pair_kernel`, one
   float32 exponential per pair of every block, stored (B N_p² float32), and the sums by
@@ -39,10 +41,11 @@ as logs. Two ways to compute them, the same numbers up to rounding:
 
 The compiled loops are in `rsu_bp._pair_sums` (numba, imported on first use).
 
-The direct form rounds each kernel value to float32 (relative 6·10⁻⁸ of its row's
-largest); the separable one is exact to float64 rounding of the exponents (absolute
-≈ 10⁻¹³ for whitened distances of 10³), so the two agree to the float32 rounding of the
-direct kernel (tests/test_rsu_bp_kernel.py checks both against the dense definition).
+Both round the kernel to float32, the direct form after computing the exponent
+−½‖u + v‖² itself in float32 (an absolute error of ~10⁻⁵ at q ~ 10²), the separable
+one after computing x − max x in float64: its sums are within ~10⁻⁶ of the dense
+float64 definition in the log, the direct form's within ~10⁻⁵ near the particles and
+coarser far from them (tests/test_rsu_bp_kernel.py checks both).
 """
 
 from __future__ import annotations
