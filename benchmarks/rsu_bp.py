@@ -16,10 +16,16 @@ Measured in one run, on the same machine and data:
    The vehicle-1 ratio comes with a bootstrap 90 % interval over runs: one run's RMSE
    is an average of 501 strongly correlated errors, so two runs can put the ratio
    anywhere between 1.1 and 1.4 (default 10 runs).
+   ``--features 3 6`` repeats the N_p = 600 timing at each number of features K
+   (froehle2018's Fig. 5 sweep goes to K = 6: S K M = 72 blocks of N_p² pairs a step).
 2. Pair-kernel throughput, pair evaluations per second, for the shape of one
-   `froehle2018` step (S K M = 18 blocks of N_p × N_p pairs):
-   - `pair_kernel` — numba, float32 values with a float64 scale per row (what
-     `rsu-bp` uses, stored once per step);
+   `froehle2018` step (S = 2 vehicles with M = 3 rows each against K = 3 features:
+   S K M = 18 blocks of N_p × N_p pairs):
+   - `separable_step` — what `rsu-bp` does per step with known features
+     (`rsu_bp.kernel.SeparableKernel`: the kernel with β's sums, then μ's sums);
+   - `direct_step` — the same work in the direct form (rows with different W:
+     `pair_kernel`, `log_row_sums`, then `log_column_sums`);
+   - `pair_kernel` — numba, float32 values with a float64 scale per row, stored;
    - `pair_kernel_log_sum` — numba, fused float64 weighted sum, nothing stored;
    - `pair_kernel_numpy` — a plain NumPy broadcast in float64.
    Each is the best of `repeats` calls after one warm-up call (numba compilation).
@@ -54,7 +60,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # `common` also when loaded from the file
 from common import environment, new_estimator, recording, run_steps, step_memory, write_json
 
+from cooploc.association import padded_groups
 from cooploc.estimators.rsu_bp import RsuBPParams
+from cooploc.estimators.rsu_bp.kernel import SeparableKernel, log_column_sums, log_row_sums
 from cooploc.metrics import VEHICLE, evaluate, per_entity_rmse
 from cooploc.particles import pair_kernel, pair_kernel_log_sum, pair_kernel_numpy
 from cooploc.registry import presets as presets_by_name
@@ -69,13 +77,13 @@ def _vehicle_rmse(rec, estimates) -> dict[str, float]:
     return {str(k): v for k, v in per_entity_rmse(table.id[rows], table.err_pos[rows]).items()}
 
 
-def time_rsu_bp(n_particles: int, n_steps: int, seeds: list[int]) -> dict:
+def time_rsu_bp(n_particles: int, n_steps: int, seeds: list[int], n_features: int = 3) -> dict:
     """Steps/s, µs/step, RMSE beside the references, peak memory (separate pass)."""
     params = RsuBPParams(n_particles=n_particles)
     seconds = steps = gnss_seconds = 0.0
     rmse: dict[str, list[dict[str, float]]] = {"rsu-bp": [], "oracle-kf": [], "gnss-kf": []}
     for seed in seeds:
-        rec = recording("froehle2018", seed, {"n_steps": n_steps})
+        rec = recording("froehle2018", seed, {"n_steps": n_steps, "n_features": n_features})
         spent, estimates = run_steps(new_estimator("rsu-bp", rec, params, seed), rec.frames)
         seconds, steps = seconds + spent, steps + len(rec.frames)
         rmse["rsu-bp"].append(_vehicle_rmse(rec, estimates))
@@ -85,16 +93,16 @@ def time_rsu_bp(n_particles: int, n_steps: int, seeds: list[int]) -> dict:
             rmse[ref].append(_vehicle_rmse(rec, estimates))
     mean_rmse = {name: {vid: float(np.sqrt(np.mean([r[vid] ** 2 for r in runs])))
                         for vid in runs[0]} for name, runs in rmse.items()}
-    rec = recording("froehle2018", seeds[0], {"n_steps": min(n_steps, 20)})
+    rec = recording("froehle2018", seeds[0], {"n_steps": min(n_steps, 20), "n_features": n_features})
     peak = step_memory(new_estimator("rsu-bp", rec, params), rec.frames)
     ratio = mean_rmse["rsu-bp"]["1"] / mean_rmse["oracle-kf"]["1"]
     low, high = _bootstrap_ratio([r["1"] for r in rmse["rsu-bp"]], [r["1"] for r in rmse["oracle-kf"]])
     return {
-        "n_particles": n_particles, "n_steps": n_steps, "runs": len(seeds),
+        "n_particles": n_particles, "n_features": n_features, "n_steps": n_steps, "runs": len(seeds),
         "steps_per_second": steps / seconds, "us_per_step": seconds / steps * 1e6,
         "gnss_kf_steps_per_second": steps / gnss_seconds,
         "gnss_kf_steps_per_rsu_bp_step": seconds / gnss_seconds,
-        "kernel_pairs_per_step": 18 * n_particles**2,
+        "kernel_pairs_per_step": 2 * n_features**2 * n_particles**2,
         "vehicle_rmse": mean_rmse,
         "vehicle1_rmse_over_oracle": ratio,
         "vehicle1_rmse_over_oracle_90pct_interval": [low, high],
@@ -133,6 +141,29 @@ def kernel_throughput(n_particles: int, repeats: int, numpy_particles: int) -> d
     w = np.full((B, n_particles), 1.0 / n_particles)
     pairs = B * n_particles**2
     out = {"blocks": B, "n_particles": n_particles, "pairs": pairs}
+    # one step of rsu-bp's known-feature BP: S = 2 vehicles × M = 3 rows against K = 3
+    # features (blocks b = r K + k), the kernel with β's sums, then μ's sums
+    S, K = 2, 3
+    feature, vehicle = rng.normal(size=(K, n_particles, d)), rng.normal(size=(S, n_particles, d))
+    s_row = np.repeat(np.arange(S), B // (S * K))
+    s_b, k_b = np.repeat(s_row, K), np.tile(np.arange(K), s_row.size)
+    index, mask = padded_groups(s_row, S)
+    groups = (index[:, None, :] * K + np.arange(K)[:, None]).reshape(-1, index.shape[1])
+    cov_s = cov[:1].repeat(B, 0)
+    buffer = np.empty(pairs, dtype=np.float32)
+
+    def separable_step() -> None:
+        kernel, _ = SeparableKernel.build(z, cov_s, feature, vehicle, k_b, s_b, groups,
+                                          np.repeat(mask, K, axis=0), w, buffer)
+        kernel.log_sum_over_first(w)
+
+    def direct_step() -> None:
+        kernel = pair_kernel(z, cov_s, feature[k_b], vehicle[s_b], buffer)
+        log_row_sums(kernel, w)
+        log_column_sums(kernel, w)
+
+    out["separable_step_pairs_per_second"] = pairs / best(separable_step)
+    out["direct_step_pairs_per_second"] = pairs / best(direct_step)
     out["numba_stored_float32_pairs_per_second"] = pairs / best(pair_kernel, z, cov, a, c)
     out["numba_fused_sum_float64_pairs_per_second"] = pairs / best(pair_kernel_log_sum, z, cov, a, c, w)
     # the broadcast needs B N² d doubles of temporaries: measured at a size that fits
@@ -220,6 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=None, help="runs at N_p = 600 (default 10)")
     parser.add_argument("--particles", type=int, nargs="+", default=None,
                         help="N_p values (default 600 2000; the largest gets one run of ≤ 201 steps)")
+    parser.add_argument("--features", type=int, nargs="+", default=[3],
+                        help="numbers of features K of the N_p = 600 timing (default 3)")
     parser.add_argument("--out", type=Path, default=None,
                         help="JSON file (default benchmarks/results/rsu_bp.json; "
                              "rsu_bp_sumo.json with --sumo)")
@@ -248,6 +281,9 @@ def main(argv: list[str] | None = None) -> int:
         big = len(particles) > 1 and n == particles[-1]
         result["rsu_bp"][str(n)] = time_rsu_bp(n, min(steps, 201) if big else steps,
                                                list(range(1 if big else runs)))
+    for k in args.features:
+        if k != 3:
+            result["rsu_bp"][f"{particles[0]}_K{k}"] = time_rsu_bp(particles[0], steps, list(range(runs)), k)
     if "600" in result["rsu_bp"]:
         result["speed_target_met"] = bool(result["rsu_bp"]["600"]["steps_per_second"] >= SPEED_TARGET)
     result["load_average_end"] = environment()["load_average"]

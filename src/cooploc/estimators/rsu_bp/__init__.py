@@ -6,7 +6,8 @@ GNSS fix and its anonymous, shuffled V2F detections z_m = H f_k − H x_s + w (e
 to the RSU, which runs loopy BP on the factor graph of eq. (9) (Fig. 2), one time step
 after the other (filtering), on particle beliefs (§IV-B, N_p per state). Per step:
 prediction (10)–(11); measurement evaluation (14) from the kernel over all particle
-pairs (`particles.pair_kernel`, computed once, reused); data association (15)–(20) by
+pairs (`rsu_bp.kernel`: computed once, reused; in the separable form one exponential per
+pair of a vehicle's and a feature's particles, whatever the rows); data association (15)–(20) by
 `association.bp_association`; I iterations of measurement correction (21)–(24);
 beliefs (25)–(26) as log-weights, resampled when N_eff < `resample_threshold` · N_p.
 BP beliefs drop the vehicle–feature correlation that `oracle-kf` keeps, so rsu-bp stays
@@ -30,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, ClassVar
 
 import numpy as np
@@ -38,6 +40,11 @@ from cooploc.association import association_weights, bp_association, decide, pad
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
+from cooploc.estimators.rsu_bp.kernel import (
+    SeparableKernel,
+    log_column_sums,
+    log_row_sums,
+)
 from cooploc.estimators.rsu_bp.tracking import FeatureTracker
 from cooploc.estimators.rsu_bp.vehicles import moments, posterior_samples
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
@@ -63,6 +70,8 @@ __all__ = ["RsuBP", "RsuBPParams"]
 
 #: ESS below this share of N_p is reported as degenerate in `Estimate.info`.
 DEGENERACY_SHARE = 0.1
+
+
 @dataclass(frozen=True)
 class RsuBPParams(Params):
     """Parameters of `rsu-bp` (defaults: Fröhle 2018 §V-A).
@@ -446,29 +455,39 @@ class RsuBP:
         # blocks b = r K + k: row r (of vehicle s_r) against feature k
         s_b, k_b = np.repeat(s_row, K), np.tile(np.arange(K), R)
         z_b, cov_b = np.repeat(v2f.z, K, axis=0), np.repeat(v2f.cov, K, axis=0)
-        a_b = (Fp @ Hf.T)[k_b]                                                    # H f_j
-        c_b = (X @ Hx.T)[s_b]                                                     # H x_l
+        Hf_p, Hx_p = Fp @ Hf.T, X @ Hx.T                                          # H f_j, H x_l
+        a_b, c_b = Hf_p[k_b], Hx_p[s_b]
         log_wx = normalize_log_weights(log_phi_chi)[0]                            # ρ^(0) = φχ
-        store = s_b.size * N * N * 4 <= prm.kernel_memory_mb * 2**20
-        G = None
-        if store:
-            if self._kernel_buffer.size < s_b.size * N * N:   # kept across steps (see pair_kernel)
-                self._kernel_buffer = np.empty(s_b.size * N * N, dtype=np.float32)
-            G = pair_kernel(z_b, cov_b, a_b, c_b, self._kernel_buffer)
+        index, mask = padded_groups(s_row, S)
+        # G per block, stored once and reused (docs/rsu_bp.md "Where the time goes"): in the
+        # separable form when each vehicle's rows share one W (one exponential per pair of a
+        # vehicle and a feature, `rsu_bp.kernel`), else directly (one per pair of each block)
+        separable = bool((v2f.cov == v2f.cov[index[s_row, 0]]).all())
+        active = np.flatnonzero(mask.any(axis=1))
+        n_values = active.size * K * N * N if separable else s_b.size * N * N
+        store = n_values * 4 <= prm.kernel_memory_mb * 2**20
+        if store and separable:
+            groups = (index[active][:, None, :] * K + np.arange(K)[:, None]).reshape(-1, index.shape[1])
+            # (and β's sums over the vehicle particles from the pass that computes it)
+            G, log_lx = SeparableKernel.build(z_b, cov_b, Hf_p, Hx_p, k_b, s_b, groups,
+                                              np.repeat(mask[active], K, axis=0),
+                                              np.exp(log_wx)[s_b], self._buffer(n_values))
+            over_x, over_f = G.log_sum_over_second, G.log_sum_over_first
+        elif store:
+            G = pair_kernel(z_b, cov_b, a_b, c_b, self._buffer(n_values))
+            over_x, over_f = partial(log_row_sums, G), partial(log_column_sums, G)
+            log_lx = over_x(np.exp(log_wx)[s_b])
+        else:
+            def over_x(weights: FloatArray) -> FloatArray:      # log Σ_l w_{b,l} G[b, j, l]
+                return pair_kernel_log_sum(z_b, cov_b, a_b, c_b, weights)
 
-        def over_x(weights: FloatArray) -> FloatArray:      # log Σ_l w_{b,l} G[b, j, l]
-            return G.log_sum_over_second(weights) if G is not None else \
-                pair_kernel_log_sum(z_b, cov_b, a_b, c_b, weights)
+            def over_f(weights: FloatArray) -> FloatArray:      # log Σ_j w_{b,j} G[b, j, l]
+                return pair_kernel_log_sum(-z_b, cov_b, c_b, a_b, weights)
 
-        def over_f(weights: FloatArray) -> FloatArray:      # log Σ_j w_{b,j} G[b, j, l]
-            return G.log_sum_over_first(weights) if G is not None else \
-                pair_kernel_log_sum(-z_b, cov_b, c_b, a_b, weights)
-
+            log_lx = over_x(np.exp(log_wx)[s_b])                                  # (B, N_f)
         # Step 2: β_{k,s}(m) = Σ_j α_j Σ_l (φχ)_l G (14)
-        log_lx = over_x(np.exp(log_wx)[s_b])                                      # (B, N_f)
         log_beta = log_sum_exp(log_lx + self.features.log_weights[k_b], axis=1).reshape(R, K)
         # Steps 3–4: data association per vehicle (15)–(20), padded to (S, K, M_max)
-        index, mask = padded_groups(s_row, S)
         slot = np.empty(R, dtype=np.int64)
         slot[index[mask]] = np.nonzero(mask)[1]
         log_psi, log_missed, log_kappa = association_weights(
@@ -517,8 +536,16 @@ class RsuBP:
             "da_iterations": marg.iterations,
             "kernel_pairs": int(s_b.size * N * N),
             "kernel_stored": bool(store),
+            "kernel_form": "separable" if separable else "direct",
         }
         return log_bx, log_bf, info
+
+    def _buffer(self, size: int) -> np.ndarray:
+        """A float32 buffer of at least `size` values for the pair kernel, kept from step to
+        step (fresh zeroed pages of this size every step would cost more than the kernel)."""
+        if self._kernel_buffer.size < size:
+            self._kernel_buffer = np.empty(size, dtype=np.float32)
+        return self._kernel_buffer
 
     # ------------------------------------------------------------ output
 
