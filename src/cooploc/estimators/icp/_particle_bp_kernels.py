@@ -56,7 +56,8 @@ def sum_over_vehicles(values: np.ndarray, scale: np.ndarray, coef: np.ndarray, s
     """out[q, f] = Σ_v G[q, f, v] w[q, v]; pair q's blocks are order[starts[q]:starts[q + 1]].
 
     values (B, J_f, J_v) float32, scale (B, J_f), coef (B,), missed (P,), w (P, J_v),
-    out (P, J_f). The sum over v runs in 8 interleaved partial sums (a fixed order).
+    out (P, J_f). The sum over v runs in 8 lanes (lane t takes v ≡ t mod 8, in order;
+    then the lanes pairwise, then the tail): a fixed order that vectorises.
     """
     P, Jf = out.shape
     L = w.shape[1]
@@ -64,22 +65,20 @@ def sum_over_vehicles(values: np.ndarray, scale: np.ndarray, coef: np.ndarray, s
     for q in numba.prange(P):
         blocks = order[starts[q]:starts[q + 1]]
         row = np.empty(L)
+        acc = np.empty(8)
         wq = w[q]
         for f in range(Jf):
             _pair_row(values, scale, coef, blocks, missed[q], f, row)
-            a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = 0.0
+            for v in range(L):
+                row[v] *= wq[v]
+            for t in range(8):
+                acc[t] = 0.0
             for v in range(0, top, 8):
-                a0 += row[v] * wq[v]
-                a1 += row[v + 1] * wq[v + 1]
-                a2 += row[v + 2] * wq[v + 2]
-                a3 += row[v + 3] * wq[v + 3]
-                a4 += row[v + 4] * wq[v + 4]
-                a5 += row[v + 5] * wq[v + 5]
-                a6 += row[v + 6] * wq[v + 6]
-                a7 += row[v + 7] * wq[v + 7]
-            total = ((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7))
+                for t in range(8):
+                    acc[t] += row[v + t]
+            total = ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
             for v in range(top, L):
-                total += row[v] * wq[v]
+                total += row[v]
             out[q, f] = total
 
 

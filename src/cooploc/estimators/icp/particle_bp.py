@@ -39,8 +39,11 @@ not used: every step starts from the GNSS-only filter and a uniform feature prio
 
 Cost per step: the pair kernel O(B J² d) for B soft pairings, then per BPA-L iteration
 O(J²) per vehicle–feature pair and O(N_cons F J) per agent for the consensus
-(`benchmarks/icp.py` times it against J). `info` adds `v2f_track` (the MAP origin of
-each row), `v2f_discarded` and `births`.
+(`benchmarks/icp.py` times it against J). G (18) is never stored: its float32 kernel
+blocks (4 B J² bytes, one buffer kept across steps) are what the two products of each
+iteration read, through the compiled loops of `_particle_bp_kernels`, which rebuild each
+float64 element of G as they go (docs/icp.md, "Cost"). `info` adds `v2f_track` (the MAP
+origin of each row), `v2f_discarded` and `births`.
 """
 
 from __future__ import annotations
@@ -53,7 +56,7 @@ import numpy as np
 from cooploc.consensus import GroupConsensus
 from cooploc.estimators.base import checked_states
 from cooploc.estimators.icp.data_association import ICPDALC, ICPDALCParams
-from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf, to_information
+from cooploc.gaussian import Gaussians, from_information, to_information
 from cooploc.network import Network
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -235,7 +238,7 @@ class ICPDAPF(ICPDALC):
         for q in range(Pn):   # a few pairs per agent; each draw is vectorised over particles
             gen = np.random.default_rng([self._shared_seed, frame.k, int(ids[pair_k[q]]) & ((1 << 62) - 1)])
             S[q] = sample_gaussians(prop_mean[q:q + 1], prop_cov[q:q + 1], J, gen).samples[0]
-        log_prop = gaussian_logpdf(S - prop_mean[:, None, :], prop_cov[:, None])         # (P, J)
+        log_prop = _proposal_logpdf(S, prop_mean, prop_cov)                               # (P, J)
         # g_ik(f, v) = P(α = 0) + Σ_ℓ P(α = ℓ) N(z_ℓ; s_f − s_v, R_ℓ) / η(α = ℓ), eq. (18) per
         # pair; dividing by the predicted likelihood (13) the marginals were computed with
         # makes every term a likelihood ratio, so that the "not detected" term (eq. 10's 1)
@@ -329,6 +332,16 @@ def _buffer(buffer: np.ndarray | None, size: int) -> np.ndarray:
     if buffer is not None and buffer.size >= size:
         return buffer
     return np.empty(size + size // 4, dtype=np.float32)
+
+
+def _proposal_logpdf(samples: FloatArray, mean: FloatArray, cov: FloatArray) -> FloatArray:
+    """log N(s; mean_q, cov_q) of particle sets (P, J, d): one Cholesky factor per set, its
+    J particles solved together (`gaussian_logpdf` would factor the covariance J times)."""
+    d = mean.shape[1]
+    L = np.linalg.cholesky(cov)                                               # (P, d, d)
+    white = np.linalg.solve(L, np.swapaxes(samples - mean[:, None, :], 1, 2))  # L⁻¹ r, (P, d, J)
+    log_det = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+    return -0.5 * ((d * np.log(2.0 * np.pi) + log_det)[:, None] + (white**2).sum(axis=1))
 
 
 def _sample_cov(samples: FloatArray) -> FloatArray:
