@@ -278,22 +278,6 @@ def test_particle_version_matches_the_exact_snapshot() -> None:
             < np.trace(prior.cov[:, :2, :2], axis1=1, axis2=2)).all()
 
 
-def test_pair_matrices_equal_the_numpy_sum_bitwise(rng: np.random.Generator) -> None:
-    from cooploc.estimators.icp.particle_bp import _pair_matrices
-    from cooploc.particles import pair_kernel
-
-    B, P, J, d = 7, 4, 9, 4
-    blk_pair = np.array([2, 0, 2, 1, 3, 2, 0])             # pairs with 1–3 blocks, out of order
-    kernel = pair_kernel(rng.normal(size=(B, d)), np.repeat(np.eye(d)[None], B, 0) * 2.0,
-                         rng.normal(size=(B, J, d)), rng.normal(size=(B, J, d)))
-    coef = rng.uniform(0.1, 3.0, B)
-    missed = np.array([0.0, 0.3, 0.0, 0.9])
-    expected = np.zeros((P, J, J))
-    np.add.at(expected, blk_pair, coef[:, None, None] * kernel.dense())
-    expected = np.maximum(expected + missed[:, None, None], 1e-300)
-    np.testing.assert_array_equal(_pair_matrices(kernel, blk_pair, coef, missed), expected)
-
-
 def test_a_vehicle_that_joins_takes_its_neighbours_tracks() -> None:
     rec = preset_recording("brambilla-road", [6, 0], {"feature_spacing": 6.0})
     joiner = int(rec.frames[0].vehicles[1])

@@ -39,8 +39,11 @@ not used: every step starts from the GNSS-only filter and a uniform feature prio
 
 Cost per step: the pair kernel O(B J² d) for B soft pairings, then per BPA-L iteration
 O(J²) per vehicle–feature pair and O(N_cons F J) per agent for the consensus
-(`benchmarks/icp.py` times it against J). `info` adds `v2f_track` (the MAP origin of
-each row), `v2f_discarded` and `births`.
+(`benchmarks/icp.py` times it against J). G (18) is never stored: its float32 kernel
+blocks (4 B J² bytes, one buffer kept across steps) are what the two products of each
+iteration read, through the compiled loops of `_particle_bp_kernels`, which rebuild each
+float64 element of G as they go (docs/icp.md, "Cost"). `info` adds `v2f_track` (the MAP
+origin of each row), `v2f_discarded` and `births`.
 """
 
 from __future__ import annotations
@@ -53,7 +56,7 @@ import numpy as np
 from cooploc.consensus import GroupConsensus
 from cooploc.estimators.base import checked_states
 from cooploc.estimators.icp.data_association import ICPDALC, ICPDALCParams
-from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf, to_information
+from cooploc.gaussian import Gaussians, from_information, to_information
 from cooploc.network import Network
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -123,6 +126,7 @@ class ICPDAPF(ICPDALC):
         # the agents' synchronised generators: one seed every agent knows, so that all of
         # them draw the same particles for a feature (paper §IV-C, after eq. (27))
         self._shared_seed = int(rng.integers(2**62))
+        self._kernel_buffer: np.ndarray | None = None    # the pair kernel's values, reused every step
 
     def step(self, frame: Frame) -> Estimate:
         local = self.local.step(frame)                              # b_i^(0), (11) / (23)
@@ -239,7 +243,7 @@ class ICPDAPF(ICPDALC):
         for q in range(Pn):   # a few pairs per agent; each draw is vectorised over particles
             gen = np.random.default_rng([self._shared_seed, frame.k, int(ids[pair_k[q]]) & ((1 << 62) - 1)])
             S[q] = sample_gaussians(prop_mean[q:q + 1], prop_cov[q:q + 1], J, gen).samples[0]
-        log_prop = gaussian_logpdf(S - prop_mean[:, None, :], prop_cov[:, None])         # (P, J)
+        log_prop = _proposal_logpdf(S, prop_mean, prop_cov)                               # (P, J)
         # g_ik(f, v) = P(α = 0) + Σ_ℓ P(α = ℓ) N(z_ℓ; s_f − s_v, R_ℓ) / η(α = ℓ), eq. (18) per
         # pair; dividing by the predicted likelihood (13) the marginals were computed with
         # makes every term a likelihood ratio, so that the "not detected" term (eq. 10's 1)
@@ -250,10 +254,11 @@ class ICPDAPF(ICPDALC):
         # spread of the beliefs, leaves almost no particle pair inside the kernel
         h2 = p.kernel_bandwidth * (4.0 / ((d + 2) * J)) ** (2.0 / (d + 4))
         spread = h2 * (_sample_cov(X)[pair_i[blk_pair]] + prop_cov[blk_pair] / p.proposal_inflation**2)
-        kernel = pair_kernel(v2f.z[rows], v2f.cov[rows] + spread, S[blk_pair], X[pair_i[blk_pair]])
-        G = _pair_matrices(kernel, blk_pair, blk_p * np.exp(-blk_log_eta),
-                           np.maximum(1.0 - np.bincount(blk_pair, weights=blk_p, minlength=Pn), 0.0))
-        del kernel
+        self._kernel_buffer = _buffer(self._kernel_buffer, blk_pair.size * J * J)
+        kernel = pair_kernel(v2f.z[rows], v2f.cov[rows] + spread, S[blk_pair], X[pair_i[blk_pair]],
+                             buffer=self._kernel_buffer)
+        G = _PairLikelihoods(kernel, blk_pair, blk_p * np.exp(-blk_log_eta),
+                             np.maximum(1.0 - np.bincount(blk_pair, weights=blk_p, minlength=Pn), 0.0))
         members = np.zeros((n, F), dtype=bool)
         members[pair_i, pair_k] = True
         groups = GroupConsensus(network, members, p.consensus_iterations)
@@ -265,15 +270,14 @@ class ICPDAPF(ICPDALC):
         for iterations in range(1, p.max_iterations + 1):  # noqa: B007 — reported below
             # (25)–(26): m_{i→k}(s_f) ∝ Σ_v w_i^ext(v) g(f, v), the extrinsic vehicle weights
             ext_v = _softmax(log_wv[pair_i] - log_kv)
-            log_ik = np.log(np.maximum(np.einsum("qfv,qv->qf", G, ext_v), 1e-300))      # (P, J)
-            # (28)–(29): Σ_i log m_{i→k} by average consensus, then max consensus (agreement)
-            payload = np.zeros((n, F, J))
-            payload[pair_i, pair_k] = log_ik
-            q_sum = groups.maximum(groups.sum(payload))
-            log_wf = q_sum[pair_i, pair_k] - log_prop                   # uniform prior, IS weights
+            log_ik = np.log(np.maximum(G.sum_over_vehicles(ext_v), 1e-300))             # (P, J)
+            # (28)–(29): Σ_i log m_{i→k} by average consensus, then max consensus (agreement);
+            # the members' blocks are the pairs, in the same (agent, feature) order
+            q_sum = groups.maximum_members(groups.sum_members(log_ik))
+            log_wf = q_sum - log_prop                                   # uniform prior, IS weights
             # (27): m_{k→i}(s_v) ∝ Σ_f w_k^ext(f) g(f, v)
             ext_f = _softmax(log_wf - log_ik)
-            log_kv = np.log(np.maximum(np.einsum("qfv,qf->qv", G, ext_f), 1e-300))
+            log_kv = np.log(np.maximum(G.sum_over_features(ext_f), 1e-300))
             log_kv -= log_kv.max(axis=1, keepdims=True)
             log_wv = np.zeros((n, J))
             np.add.at(log_wv, pair_i, log_kv)
@@ -295,16 +299,52 @@ class ICPDAPF(ICPDALC):
         return Gaussians(v_mean, v_cov), iterations
 
 
-def _pair_matrices(kernel: PairKernel, blk_pair: IntArray, coef: FloatArray,
-                   missed: FloatArray) -> FloatArray:
-    """G (P, J, J) of eq. (18): Σ over each pair's blocks of coef · kernel, plus the missed mass."""
-    from cooploc.estimators.icp._pair_sums import pair_matrices
+class _PairLikelihoods:
+    """The pair likelihoods G (P, J_f, J_v) of eq. (18), kept as the kernel's float32 blocks:
+    G[q, f, v] = max(Σ_{b ∈ q} coef_b · kernel_b[f, v] + missed_q, 1e-300), with the two
+    products the BPA-L needs computed without storing G (`_particle_bp_kernels`)."""
 
-    order = np.argsort(blk_pair, kind="stable")            # a pair's blocks in their order
-    starts = np.searchsorted(blk_pair[order], np.arange(missed.size + 1))
-    G = np.empty((missed.size, *kernel.values.shape[1:]))
-    pair_matrices(kernel.values, np.exp(kernel.log_scale), coef, starts, order, missed, G)
-    return G
+    def __init__(self, kernel: PairKernel, blk_pair: IntArray, coef: FloatArray, missed: FloatArray) -> None:
+        self.order = np.argsort(blk_pair, kind="stable")       # a pair's blocks in their order
+        self.starts = np.searchsorted(blk_pair[self.order], np.arange(missed.size + 1))
+        self.values, self.scale = kernel.values, np.exp(kernel.log_scale)
+        self.coef, self.missed = np.ascontiguousarray(coef, dtype=float), np.ascontiguousarray(missed)
+
+    def sum_over_vehicles(self, w: FloatArray) -> FloatArray:
+        """Σ_v G[q, f, v] w[q, v], (P, J_f), for w (P, J_v)."""
+        from cooploc.estimators.icp._particle_bp_kernels import sum_over_vehicles
+
+        out = np.empty((self.missed.size, self.values.shape[1]))
+        sum_over_vehicles(self.values, self.scale, self.coef, self.starts, self.order, self.missed,
+                          np.ascontiguousarray(w, dtype=float), out)
+        return out
+
+    def sum_over_features(self, w: FloatArray) -> FloatArray:
+        """Σ_f w[q, f] G[q, f, v], (P, J_v), for w (P, J_f)."""
+        from cooploc.estimators.icp._particle_bp_kernels import sum_over_features
+
+        out = np.empty((self.missed.size, self.values.shape[2]))
+        sum_over_features(self.values, self.scale, self.coef, self.starts, self.order, self.missed,
+                          np.ascontiguousarray(w, dtype=float), out)
+        return out
+
+
+def _buffer(buffer: np.ndarray | None, size: int) -> np.ndarray:
+    """A float32 buffer of at least `size` elements: `buffer` if it is large enough, else a new
+    one a quarter larger (the kernel's pages are then touched once per run, not every step)."""
+    if buffer is not None and buffer.size >= size:
+        return buffer
+    return np.empty(size + size // 4, dtype=np.float32)
+
+
+def _proposal_logpdf(samples: FloatArray, mean: FloatArray, cov: FloatArray) -> FloatArray:
+    """log N(s; mean_q, cov_q) of particle sets (P, J, d): one Cholesky factor per set, its
+    J particles solved together (`gaussian_logpdf` would factor the covariance J times)."""
+    d = mean.shape[1]
+    L = np.linalg.cholesky(cov)                                               # (P, d, d)
+    white = np.linalg.solve(L, np.swapaxes(samples - mean[:, None, :], 1, 2))  # L⁻¹ r, (P, d, J)
+    log_det = 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+    return -0.5 * ((d * np.log(2.0 * np.pi) + log_det)[:, None] + (white**2).sum(axis=1))
 
 
 def _sample_cov(samples: FloatArray) -> FloatArray:
