@@ -175,3 +175,30 @@ def test_mistakes_are_one_line_before_any_run(no_runs, tmp_path, args, parts):
     for part in parts:
         assert part in result.output
     assert not (tmp_path / "x").exists()
+
+
+def _row(rmse: float, unused: list[str], own: str | None, ratio: float | None, **extra) -> dict:
+    return {"vehicle_rmse": rmse, "interval_90": [rmse, rmse], "association_accuracy": None,
+            "association_accuracy_per_step": None, "steps_per_second": 1.0, "failed_runs": 0,
+            "unused_kinds": unused, "ratio_gnss_kf": rmse / 3.0, "ratio_bound": rmse / 1.5,
+            "own_bound": own, "ratio_own_bound": ratio, **extra}
+
+
+def test_a_bound_that_leaves_aside_a_kind_the_method_reads_is_flagged():
+    from cooploc.compare import _kinds_beyond, markdown
+    rows = {"gnss-kf": _row(3.0, ["v2f"], "kf-known-da", None),
+            "oracle-kf": _row(1.5, ["odometry"], "oracle-kf", 1.0),
+            "rsu-bp": _row(1.45, [], "oracle-kf", 1.45 / 1.5),
+            "plbp": _row(2.5, ["odometry", "v2f"], None, None)}
+    assert _kinds_beyond(rows, "rsu-bp", "oracle-kf") == ["odometry"]
+    assert _kinds_beyond(rows, "plbp", "oracle-kf") == []            # reads no more than the bound
+    assert _kinds_beyond(rows, "oracle-kf", "oracle-kf") == []
+    assert _kinds_beyond(rows, "rsu-bp", None) == [] and _kinds_beyond(rows, "rsu-bp", "icp") == []
+    rows["rsu-bp"].update(beyond_bound=["odometry"], beyond_own_bound=["odometry"])
+    data = {"interval_90": "x", "scenarios": [{"scenario": "s", "bound": "oracle-kf", "runs": 1, "seed": 0,
+                                               "results": "s", "no_ratio": {}, "estimators": rows}]}
+    text = markdown(data)
+    assert "1.45 m (0.97× oracle-kf†)" in text and "1.50 m (1.00× oracle-kf)" in text
+    # one note per bound, even when the scenario's bound and the method's own are the same
+    note = "uses odometry, which oracle-kf leaves aside: oracle-kf is not a bound for it here"
+    assert text.count(note) == 1

@@ -171,6 +171,13 @@ def _why_no_ratio(reference: str | None, rows: Mapping[str, Mapping[str, Any]], 
     return None
 
 
+def _kinds_beyond(rows: Mapping[str, Mapping[str, Any]], name: str, reference: str | None) -> list[str]:
+    """The measurement kinds `name` uses that the estimator `reference` leaves aside."""
+    if reference is None or reference == name or "unused_kinds" not in rows.get(reference, {}):
+        return []
+    return sorted(set(rows[reference]["unused_kinds"]) - set(rows[name]["unused_kinds"]))
+
+
 def scenario_table(p: ScenarioPlan, folder: Path) -> dict[str, Any]:
     """One scenario's table (the JSON form; see the module docstring)."""
     summary = json.loads((folder / "summary.json").read_text()) if p.config is not None else None
@@ -204,6 +211,12 @@ def scenario_table(p: ScenarioPlan, folder: Path) -> dict[str, Any]:
             row["ratio_own_bound"] = None if why else _ratio(row["vehicle_rmse"], rows[own]["vehicle_rmse"])
             if why:
                 row["own_bound_note"] = why
+            # a bound is one only for the sensors it reads: a method that also reads a kind
+            # the bound leaves aside (e.g. odometry) may legitimately beat it
+            for key, ref in (("beyond_bound", p.bound), ("beyond_own_bound", own)):
+                extra = _kinds_beyond(rows, name, ref)
+                if extra:
+                    row[key] = extra
     return {"scenario": p.preset, "bound": p.bound, "runs": None if summary is None else summary["runs"],
             "seed": None if summary is None else summary["seed"],
             "results": p.preset if summary is not None else None,
@@ -250,7 +263,8 @@ def own_bounds_overview(data: Mapping[str, Any]) -> list[str]:
     sensors (`registry`: an estimator's `bound`): RMSE (ratio × that bound)."""
     def cell(row: Mapping[str, Any]) -> str:
         ratio = row.get("ratio_own_bound")
-        shown = " (no bound)" if ratio is None else f" ({ratio:.2f}× {row['own_bound']})"
+        mark = "†" if row.get("beyond_own_bound") else ""
+        shown = " (no bound)" if ratio is None else f" ({ratio:.2f}× {row['own_bound']}{mark})"
         return _num(row["vehicle_rmse"], unit=" m") + shown
 
     return _grid(data, cell)
@@ -265,7 +279,9 @@ def markdown(data: Mapping[str, Any]) -> str:
              "Each method against the known-association bound of its own sensors (an estimator's "
              "`bound`: `oracle-kf` for GNSS + V2F, `oracle-pose` for GNSS + radar, "
              "`oracle-pose-smoother` for the smoothed factor graphs, `kf-known-da` for GNSS alone): "
-             "RMSE (ratio × that bound); \"no bound\" where cooploc has none or it did not run.", "",
+             "RMSE (ratio × that bound); \"no bound\" where cooploc has none or it did not run; "
+             "† where the method also reads a kind that bound leaves aside (e.g. odometry), so the "
+             "bound is not one for it there (the scenario's table names the kind).", "",
              *own_bounds_overview(data), "",
              f"90 % interval: {data['interval_90']}. "
              "Ratios are RMSE / RMSE of gnss-kf, of the scenario's bound and of the bound of the "
@@ -287,6 +303,10 @@ def markdown(data: Mapping[str, Any]) -> str:
                 notes.append("not using " + ", ".join(row["unused_kinds"]))
             if "own_bound_note" in row and row["own_bound"] is not None:
                 notes.append(f"no own-bound ratio: {row['own_bound_note']}")
+            beyond = {ref: row[key] for key, ref in (("beyond_bound", t["bound"]),
+                                                     ("beyond_own_bound", row["own_bound"])) if row.get(key)}
+            notes += [f"uses {', '.join(kinds)}, which {ref} leaves aside: {ref} is not a bound for it here"
+                      for ref, kinds in beyond.items()]
             lines.append(
                 f"| `{name}` | {_num(row['vehicle_rmse'])} | "
                 f"{'—' if interval is None else f'{interval[0]:.2f}–{interval[1]:.2f}'} | "
