@@ -24,7 +24,7 @@ Measured in one run, on the same machine and data:
    - `separable_step` — what `rsu-bp` does per step with known features
      (`rsu_bp.kernel.SeparableKernel`: the kernel with β's sums, then μ's sums);
    - `direct_step` — the same work in the direct form (rows with different W:
-     `pair_kernel`, `log_row_sums`, then `log_column_sums`);
+     `pair_kernel`, then its `log_sum_over_second` and `log_sum_over_first`);
    - `pair_kernel` — numba, float32 values with a float64 scale per row, stored;
    - `pair_kernel_log_sum` — numba, fused float64 weighted sum, nothing stored;
    - `pair_kernel_numpy` — a plain NumPy broadcast in float64.
@@ -62,7 +62,7 @@ from common import environment, new_estimator, recording, run_steps, step_memory
 
 from cooploc.association import padded_groups
 from cooploc.estimators.rsu_bp import RsuBPParams
-from cooploc.estimators.rsu_bp.kernel import SeparableKernel, log_column_sums, log_row_sums
+from cooploc.estimators.rsu_bp.kernel import SeparableKernel
 from cooploc.metrics import VEHICLE, evaluate, per_entity_rmse
 from cooploc.particles import pair_kernel, pair_kernel_log_sum, pair_kernel_numpy
 from cooploc.registry import presets as presets_by_name
@@ -159,8 +159,8 @@ def kernel_throughput(n_particles: int, repeats: int, numpy_particles: int) -> d
 
     def direct_step() -> None:
         kernel = pair_kernel(z, cov_s, feature[k_b], vehicle[s_b], buffer)
-        log_row_sums(kernel, w)
-        log_column_sums(kernel, w)
+        kernel.log_sum_over_second(w)
+        kernel.log_sum_over_first(w)
 
     out["separable_step_pairs_per_second"] = pairs / best(separable_step)
     out["direct_step_pairs_per_second"] = pairs / best(direct_step)

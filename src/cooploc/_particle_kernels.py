@@ -7,7 +7,14 @@ v = L⁻¹ c, the exponent of N(z_b; a_{b,j} − c_{b,l}, W_b) is −½‖u_bj +
   (the exponentials by `cooploc._expf.exp_inplace`: vectorized, and bit for bit the
   C library's `expf` that ``np.exp`` calls here one element at a time);
 - `kernel_sum` returns log Σ_l w_bl exp(log_norm_b − ½ q_bjl) in float64 without
-  storing the pairs.
+  storing the pairs;
+- `row_sums` / `column_sums` are the weighted sums of the stored values over l and over
+  j (`PairKernel.log_sum_over_second` / `_first`). Both read the values once and
+  accumulate in float64: a float32 matrix–vector product (BLAS) does the same work, but
+  its multiplications see the kernel's subnormal values (and weights spanning many
+  decades, cast to float32), and each such product takes the processor's slow path; in
+  float64 a float32 subnormal is an ordinary number. A zero weight skips its row in
+  `column_sums`.
 
 Both run a `prange` loop over (b, j) whose inner loops over l are contiguous.
 """
@@ -20,7 +27,7 @@ import numpy as np
 from cooploc._expf import exp_inplace
 from cooploc.types import FloatArray
 
-__all__ = ["kernel_matrix", "kernel_sum"]
+__all__ = ["column_sums", "kernel_matrix", "kernel_sum", "row_sums"]
 
 
 @numba.njit(fastmath=True, cache=True, inline="always")
@@ -90,3 +97,32 @@ def kernel_sum(u: FloatArray, vt: FloatArray, log_norm: FloatArray, w: FloatArra
         for l in range(Nl):
             acc += w[b, l] * np.exp(-0.5 * (row[l] - q_min))
         out[b, j] = log_norm[b] - 0.5 * q_min + np.log(acc)
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def row_sums(values: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
+    """out[b, j] = Σ_l w[b, l] values[b, j, l]; values (B, N_j, N_l) float32, w (B, N_l)."""
+    B, Nj, Nl = values.shape
+    for bj in numba.prange(B * Nj):
+        b = bj // Nj
+        j = bj - b * Nj
+        acc = 0.0
+        for l in range(Nl):
+            acc += w[b, l] * np.float64(values[b, j, l])
+        out[b, j] = acc
+
+
+@numba.njit(parallel=True, fastmath=True, cache=True)
+def column_sums(values: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
+    """out[b, l] = Σ_j w[b, j] values[b, j, l]; values (B, N_j, N_l) float32, w (B, N_j)."""
+    B, Nj, Nl = values.shape
+    for b in numba.prange(B):
+        acc = np.zeros(Nl)
+        for j in range(Nj):
+            wj = w[b, j]
+            if wj == 0.0:
+                continue
+            for l in range(Nl):
+                acc[l] += wj * np.float64(values[b, j, l])
+        for l in range(Nl):
+            out[b, l] = acc[l]

@@ -333,22 +333,29 @@ class PairKernel:
         return np.exp(self.log_scale)[:, :, None] * self.values.astype(float)
 
     def log_sum_over_second(self, weights: FloatArray) -> FloatArray:
-        """log Σ_l w[b, l] G[b, j, l], (B, N_j), for weights w (B, N_l) ≥ 0."""
-        s = (self.values @ np.asarray(weights, np.float32)[:, :, None])[:, :, 0]
+        """log Σ_l w[b, l] G[b, j, l], (B, N_j), for weights w (B, N_l) ≥ 0 (float64 sums,
+        `_particle_kernels.row_sums`)."""
+        from cooploc._particle_kernels import row_sums
+
+        sums = np.empty(self.log_scale.shape)
+        row_sums(self.values, np.ascontiguousarray(weights, dtype=float), sums)
         with np.errstate(divide="ignore"):
-            return self.log_scale + np.log(s.astype(float))
+            return self.log_scale + np.log(sums)
 
     def log_sum_over_first(self, weights: FloatArray) -> FloatArray:
-        """log Σ_j w[b, j] G[b, j, l], (B, N_l), for weights w (B, N_j) ≥ 0."""
-        weights = np.asarray(weights, float)
+        """log Σ_j w[b, j] G[b, j, l], (B, N_l), for weights w (B, N_j) ≥ 0: each row's scale
+        goes into its weight, relative to the largest, so the float64 sums
+        (`_particle_kernels.column_sums`) cannot overflow."""
+        from cooploc._particle_kernels import column_sums
+
         with np.errstate(divide="ignore"):
-            lw = np.where(weights > 0, np.log(weights), -np.inf) + self.log_scale
+            lw = np.log(np.asarray(weights, dtype=float)) + self.log_scale
         top = lw.max(axis=1, keepdims=True)
         top = np.where(np.isfinite(top), top, 0.0)
-        w = np.exp(lw - top).astype(np.float32)
-        s = (w[:, None, :] @ self.values)[:, 0, :]
+        sums = np.empty((self.values.shape[0], self.values.shape[2]))
+        column_sums(self.values, np.exp(lw - top), sums)
         with np.errstate(divide="ignore"):
-            return top + np.log(s.astype(float))
+            return top + np.log(sums)
 
 
 def pair_kernel(z: FloatArray, cov: FloatArray, a: FloatArray, c: FloatArray,

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from functools import partial
 from typing import Any, ClassVar
 
 import numpy as np
@@ -40,11 +39,7 @@ from cooploc.association import association_weights, bp_association, decide, pad
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
-from cooploc.estimators.rsu_bp.kernel import (
-    SeparableKernel,
-    log_column_sums,
-    log_row_sums,
-)
+from cooploc.estimators.rsu_bp.kernel import SeparableKernel
 from cooploc.estimators.rsu_bp.tracking import FeatureTracker
 from cooploc.estimators.rsu_bp.vehicles import moments, posterior_samples
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
@@ -475,7 +470,7 @@ class RsuBP:
             over_x, over_f = G.log_sum_over_second, G.log_sum_over_first
         elif store:
             G = pair_kernel(z_b, cov_b, a_b, c_b, self._buffer(n_values))
-            over_x, over_f = partial(log_row_sums, G), partial(log_column_sums, G)
+            over_x, over_f = G.log_sum_over_second, G.log_sum_over_first
             log_lx = over_x(np.exp(log_wx)[s_b])
         else:
             def over_x(weights: FloatArray) -> FloatArray:      # log Σ_l w_{b,l} G[b, j, l]

@@ -1,18 +1,9 @@
-"""The weighted sums of `rsu-bp`'s stored pair kernel, compiled (numba; imported on first use).
+"""The compiled loops of `rsu-bp`'s separable pair kernel (`rsu_bp.kernel`; numba, imported on first use).
 
-`particles.pair_kernel` stores G[b, j, l] = exp(log_scale[b, j]) · values[b, j, l] with
-`values` float32 in [0, 1]. β and γ (Fröhle 2018 eqs. (14), (21)) need the sums over
-the vehicle particles l, μ (23) the sums over the feature particles j:
-
-    row_sums:    out[b, j] = Σ_l w[b, l] values[b, j, l]
-    column_sums: out[b, l] = Σ_j w[b, j] values[b, j, l]
-
-Both read `values` once and accumulate in float64. A float32 matrix–vector product
-(BLAS) does the same work, but its multiplications see the kernel's subnormal values
-(and μ's weights, which span many decades, cast to float32) and each such product
-takes the processor's slow path; in float64 a float32 subnormal is an ordinary number.
-The sums differ from the float32 products only by their rounding (the float64 ones are
-the more accurate). Weights are ≥ 0; a zero weight skips its row in `column_sums`.
+`separable_rows` fills E = exp(x − max_l x) per (vehicle, feature) and gives β's sums
+over the vehicle particles while a row of E is in cache; `separable_columns` gives μ's
+sums over the feature particles. Both accumulate in float64 (the stored kernel's sums,
+`particles.PairKernel`, are in `cooploc._particle_kernels`).
 """
 
 from __future__ import annotations
@@ -23,36 +14,7 @@ import numpy as np
 from cooploc._expf import exp_inplace
 from cooploc._particle_kernels import row_min
 
-__all__ = ["column_sums", "row_sums", "separable_columns", "separable_rows"]
-
-
-@numba.njit(parallel=True, fastmath=True, cache=True)
-def row_sums(values: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
-    """out[b, j] = Σ_l w[b, l] values[b, j, l]; values (B, N_j, N_l) float32, w (B, N_l)."""
-    B, Nj, Nl = values.shape
-    for bj in numba.prange(B * Nj):
-        b = bj // Nj
-        j = bj - b * Nj
-        acc = 0.0
-        for l in range(Nl):
-            acc += w[b, l] * np.float64(values[b, j, l])
-        out[b, j] = acc
-
-
-@numba.njit(parallel=True, fastmath=True, cache=True)
-def column_sums(values: np.ndarray, w: np.ndarray, out: np.ndarray) -> None:
-    """out[b, l] = Σ_j w[b, j] values[b, j, l]; values (B, N_j, N_l) float32, w (B, N_j)."""
-    B, Nj, Nl = values.shape
-    for b in numba.prange(B):
-        acc = np.zeros(Nl)
-        for j in range(Nj):
-            wj = w[b, j]
-            if wj == 0.0:
-                continue
-            for l in range(Nl):
-                acc[l] += wj * np.float64(values[b, j, l])
-        for l in range(Nl):
-            out[b, l] = acc[l]
+__all__ = ["separable_columns", "separable_rows"]
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)

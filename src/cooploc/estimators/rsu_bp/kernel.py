@@ -37,9 +37,10 @@ as logs. Two ways to compute them, the same numbers up to rounding:
 
 - **Direct form** (rows with different covariances): `particles.pair_kernel`, one
   float32 exponential per pair of every block, stored (B N_p² float32), and the sums by
-  one float64 pass over the stored values (`log_row_sums`, `log_column_sums`).
+  one float64 pass over the stored values (`PairKernel.log_sum_over_second`, `_first`).
 
-The compiled loops are in `rsu_bp._pair_sums` (numba, imported on first use).
+The separable form's compiled loops are in `rsu_bp._pair_sums`, the stored kernel's
+in `cooploc._particle_kernels` (numba, imported on first use).
 
 Both round the kernel to float32, the direct form after computing the exponent
 −½‖u + v‖² itself in float32 (an absolute error of ~10⁻⁵ at q ~ 10²), the separable
@@ -54,10 +55,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cooploc.particles import PairKernel, pair_kernel_log_sum
+from cooploc.particles import pair_kernel_log_sum
 from cooploc.types import FloatArray, IntArray
 
-__all__ = ["TINY", "SeparableKernel", "log_column_sums", "log_row_sums"]
+__all__ = ["TINY", "SeparableKernel"]
 
 #: a scaled sum below this may hold terms that underflowed or lost precision in float32
 #: (each below 1.5e-45): its block is summed directly instead
@@ -172,28 +173,3 @@ class SeparableKernel:
             out[redo] = pair_kernel_log_sum(-self.z[redo], self.cov[redo], self.c[redo], self.a[redo],
                                             weights[redo])
         return out
-
-
-def log_row_sums(G: PairKernel, weights: FloatArray) -> FloatArray:
-    """log Σ_l w[b, l] G[b, j, l], (B, N_j), for weights (B, N_l) ≥ 0 (`_pair_sums.row_sums`)."""
-    from cooploc.estimators.rsu_bp._pair_sums import row_sums
-
-    sums = np.empty(G.log_scale.shape)
-    row_sums(G.values, np.ascontiguousarray(weights, dtype=float), sums)
-    with np.errstate(divide="ignore"):
-        return G.log_scale + np.log(sums)
-
-
-def log_column_sums(G: PairKernel, weights: FloatArray) -> FloatArray:
-    """log Σ_j w[b, j] G[b, j, l], (B, N_l), for weights (B, N_j) ≥ 0: each row's scale
-    goes into its weight, relative to the largest, so the float64 sums cannot overflow."""
-    from cooploc.estimators.rsu_bp._pair_sums import column_sums
-
-    with np.errstate(divide="ignore"):
-        lw = np.log(np.asarray(weights, dtype=float)) + G.log_scale
-    top = lw.max(axis=1, keepdims=True)
-    top = np.where(np.isfinite(top), top, 0.0)
-    sums = np.empty((G.values.shape[0], G.values.shape[2]))
-    column_sums(G.values, np.exp(lw - top), sums)
-    with np.errstate(divide="ignore"):
-        return top + np.log(sums)
