@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from cooploc.consensus import GroupConsensus, average_consensus, flood, max_consensus, network_sum
 from cooploc.errors import InvalidInputError
-from cooploc.network import Network
+from cooploc.network import Network, sorted_distinct
 
 # Rounds are chosen from the spectral gap for 1e-12 relative error; values are O(1).
 CONVERGED_ATOL = 1e-8
@@ -46,6 +46,26 @@ def test_network_rejects_links_to_strangers() -> None:
 def test_duplicate_and_self_links_are_ignored() -> None:
     net = Network([0, 1], [[0, 1], [1, 0], [0, 0]])
     assert net.n_edges == 2
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 40), st.integers(0, 200), st.integers(0, 2**31 - 1))
+def test_edges_are_each_direction_of_each_link_once_by_receiver(n: int, n_links: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    agents = rng.permutation(1000)[:n]
+    links = agents[rng.integers(0, n, (n_links, 2))] if n else np.zeros((0, 2), dtype=np.int64)
+    net = Network(agents, links)
+    position = {int(a): i for i, a in enumerate(agents)}
+    expected = sorted({(position[int(a)], position[int(b)]) for a, b in links if a != b}
+                      | {(position[int(b)], position[int(a)]) for a, b in links if a != b})
+    assert list(zip(net.target.tolist(), net.source.tolist(), strict=True)) == expected
+    assert net.target.dtype == net.source.dtype == np.int64
+
+
+@given(st.lists(st.integers(-2**40, 2**40), max_size=50))
+def test_sorted_distinct_is_numpys_unique(values: list[int]) -> None:
+    x = np.asarray(values, dtype=np.int64)
+    np.testing.assert_array_equal(sorted_distinct(x), np.unique(x))
 
 
 def test_metropolis_weights_are_doubly_stochastic(rng: np.random.Generator) -> None:

@@ -59,7 +59,7 @@ import numpy as np
 import numpy.typing as npt
 
 from cooploc.errors import InvalidInputError
-from cooploc.network import Network
+from cooploc.network import Network, sorted_distinct
 from cooploc.types import FloatArray, IntArray
 
 __all__ = ["GroupConsensus", "average_consensus", "flood", "max_consensus", "network_sum"]
@@ -105,7 +105,7 @@ class GroupConsensus:
             self.edges, self.blocks, self.slot = self.edges[order], self.blocks[order], self.slot[order]
             self._to = np.searchsorted(self._member_slots, self.slot)              # receiver's block
             self._from = np.searchsorted(self._member_slots, network.source[self.edges] * G + self.blocks)
-            self._n_messages = int(np.unique(self.edges).size)
+            self._n_messages = sorted_distinct(self.edges).size
         self._weights: FloatArray | None = None
         self._leader: np.ndarray | None = None
 

