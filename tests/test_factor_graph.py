@@ -368,6 +368,22 @@ def test_isam2_fixed_lag_is_the_full_isam2_within_linearisation_error(seed: int)
         np.testing.assert_allclose(b.vehicles.mean, a.vehicles.mean, rtol=0, atol=0.1)
 
 
+def test_isam2_holds_only_the_latest_frame_of_factors(seed: int) -> None:
+    """Each frame's factors go to GTSAM once, so fg-isam2's graph data keeps only the frames
+    of its window, lag + 1 (memory flat over a long run); keeping every frame changes no
+    estimate."""
+    rec = recording([seed, 83], n=3, steps=25)
+    lean = make_estimator("fg-isam2", rec.setup, None, np.random.default_rng(0))
+    kept = make_estimator("fg-isam2", rec.setup, None, np.random.default_rng(0))
+    kept.data.keep_frames = None
+    for f in rec.frames:
+        a, b = lean.step(f), kept.step(f)
+        np.testing.assert_array_equal(a.vehicles.mean, b.vehicles.mean)
+        np.testing.assert_array_equal(a.vehicles.cov, b.vehicles.cov)
+    assert len(lean.data.frames) == lean.params.lag + 1 < len(kept.data.frames) == len(rec.frames)
+    assert lean.data.n_topology == kept.data.n_topology > 0
+
+
 def test_isam2_lag_is_validated() -> None:
     from cooploc.errors import ConfigError, CooplocError
 

@@ -153,13 +153,18 @@ class GraphData:
     view_confidence, gate_probability : per-radar mode (module docstring): least
         probability of a radar's in-view set; χ² gate of a row against a belief and of
         the measured topology against its prediction.
+    keep_frames : how many of the latest frames' factors `frames` keeps: None (every
+        frame) for the batch solvers, which re-solve the whole graph; a window for an
+        incremental solver that hands each frame to its backend once — memory then stays
+        flat over a long run.
     """
 
     def __init__(self, setup: Setup, kind: str, gap_variance: float,
                  odometry_noise: bool = False, name: str = "the factor graph",
                  gnss_velocity: bool = True, view_confidence: float = 0.9,
-                 gate_probability: float = 0.9999) -> None:
+                 gate_probability: float = 0.9999, keep_frames: int | None = None) -> None:
         self.setup, self.kind, self.gap_variance = setup, kind, gap_variance
+        self.keep_frames = keep_frames
         self.odometry_noise = odometry_noise and kind == NEW
         self.frames: list[FrameFactors] = []
         self.n_vars = 0
@@ -250,6 +255,8 @@ class GraphData:
             (np.nan_to_num(delta),) * K, np.array(t_s, float), np.array(t_sigma, float),
         )
         self.frames.append(factors)
+        if self.keep_frames is not None and len(self.frames) > self.keep_frames:
+            del self.frames[:-self.keep_frames]
         self._ids, self._vars = ids, new_vars
         return factors
 

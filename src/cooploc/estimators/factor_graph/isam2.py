@@ -124,7 +124,8 @@ class FgIsam2:
 
         self.setup, self.params = setup, params
         self.data = GraphData(setup, NEW, params.gap_variance, odometry_noise(setup, params), self.name,
-                              params.gnss_velocity, params.view_confidence, params.gate_probability)
+                              params.gnss_velocity, params.view_confidence, params.gate_probability,
+                              keep_frames=params.lag + 1)   # each frame goes to GTSAM once, in `step`
         self.filter = PositionFilter()   # the linear part: beliefs that find the radars' vehicles
         self.estimates = EstimateLayout(setup, self.name)
         isam_params = gtsam.ISAM2Params()
