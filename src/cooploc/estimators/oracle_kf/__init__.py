@@ -65,7 +65,7 @@ class OracleKF:
     needs_truth: ClassVar[bool] = True
     default_preset: ClassVar[str] = "froehle2018"
     usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
-        "gnss": ("gnss-position",), "v2f": ("relative-position",)}
+        "gnss": ("gnss-position",), "v2f": ("relative-position",), "odometry": ("odometry",)}
 
     @staticmethod
     def memory_bytes(sizes: Sizes, params: OracleKFParams) -> float:
