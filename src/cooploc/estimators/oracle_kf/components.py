@@ -21,17 +21,28 @@ One step
 --------
 1. Marginalise out the vehicles that left and the features unseen for
    `feature_timeout` steps.
-2. Predict each component with the block-diagonal motion model, P⁻ = F P Fᵀ + Q block
-   by block: O(D² d) for D states of entities of dimension d, not the O(D³) of a dense F
-   (`_matrix_kernels.congruence_blocks`: one pass over P, each block F_a P_ab F_bᵀ
-   written to both triangles, so P⁻ is exactly symmetric). Q of every component's
-   entities comes from one call of the motion model.
+2. Clone for the odometry (where the scenario has it; Gulati eq. 4,
+   z = H x_k − H x_{k−1} + w), stochastic cloning: every vehicle of a component with an
+   odometry row gets its clone c = H x_{k−1} appended to the component — an entity of
+   kind CLONE, with mean H x and the rows and columns A P, A P Aᵀ of the joint
+   (`_with_clones`), so correlated with everything the vehicle is. An alone vehicle with
+   one row keeps its belief at k − 1 and is updated by `gaussian.kf_update_relative`
+   before its GNSS row (exact: it is independent of all else); promoted to a component
+   this step (step 4), it takes its clone along; with several rows it becomes a
+   component first. Then predict each component with the block-diagonal motion model,
+   P⁻ = F P Fᵀ + Q block by block (a clone is static: identity, no noise, so its
+   cross-covariance becomes F P Aᵀ): O(D² d) for D states of entities of dimension d, not
+   the O(D³) of a dense F (`_matrix_kernels.congruence_blocks`: one pass over P, each
+   block F_a P_ab F_bᵀ written to both triangles, so P⁻ is exactly symmetric). Q of every
+   component's entities comes from one call of the motion model.
 3. Append the entering vehicles (alone) and the features seen for the first time
    (`births`), each a component of its own.
 4. Merge the components that this step's V2F rows link (connected components of the
    graph whose nodes are the components and whose edges are the rows).
-5. Update each component with its rows in information form, on the r coordinates the
-   rows observe, y = Eᵀθ (the position of each observed entity). The rows add
+5. Update each component with its rows — GNSS, V2F and odometry (z = H x_k − c + w) — in
+   information form, on the r coordinates the rows observe, y = Eᵀθ (the position of
+   each observed entity, all of a clone); the clones are then marginalised out
+   (dropped). The rows add
    J = Σ Hᵀ R⁻¹ H (r × r) and a = Σ Hᵀ R⁻¹ ν to the information of y, ν = z − H θ⁻ the
    innovations. With G = Eᵀ P⁻ E (r × r), Woodbury's identity gives the covariance form
 

@@ -5,7 +5,12 @@ leave are marginalised out (their rows and columns dropped), entering vehicles a
 newly seen features are appended with their prior (or a broad belief around their
 first fix), features unseen for `feature_timeout` steps are dropped; then one joint
 prediction and one joint Joseph-form update with all rows stacked (`kf_update_nis`,
-square-root form where the Joseph form fails). Cost O(D³ + D² m) for D = 4(S + K)
+square-root form where the Joseph form fails). Odometry rows (Gulati eq. 4) by
+stochastic cloning: before the prediction, the clones c = A θ (A picks H x_{k−1} of each
+vehicle with a row) are kept beside θ with Cov(c) = A P Aᵀ and Cov(θ, c) = P Aᵀ, which the
+prediction turns into F P Aᵀ (c is static) and the births and the sorting follow row by
+row; the update is that of [θ; c], with z = H x_k − c + w stacked with the other rows,
+and c is then dropped (marginalised out). Cost O(D³ + D² m) for D = 4(S + K)
 states and m measurement components, whatever the coupling: the component form
 (`components`) gives the same numbers where the coupling is sparse. Kept as the
 reference the tests compare with, and selectable with `dense=True`.
