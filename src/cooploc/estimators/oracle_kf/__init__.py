@@ -16,9 +16,10 @@ with an odometry row joins the joint state with all its correlations — with th
 vehicle, the other vehicles and the features — is kept static by the prediction, and
 the row z = H x_k − c + w is one more linear row of the update; then c is marginalised
 out. A vehicle entering at k (no state at k − 1) or without a row gets no odometry
-update. Where the scenario has no odometry sensor nothing changes, bit for bit. Fröhle §V-B compares its loopy BP
-with "a centralized Kalman filter over the joint total state"; Brambilla 2020 calls
-the same reference "ICP with known DA".
+update. Where the scenario has no odometry sensor nothing changes, bit for bit.
+
+Fröhle §V-B compares its loopy BP with "a centralized Kalman filter over the joint total
+state"; Brambilla 2020 calls the same reference "ICP with known DA".
 
 It reads only the association (`AssociationTruth`: origins and infrastructure poses),
 never true states. Clutter rows (origin −1) are discarded — the oracle knows them.
