@@ -277,7 +277,7 @@ def markdown(data: Mapping[str, Any]) -> str:
              "estimator cannot run there (the reason is in the scenario's table).", "",
              *overview(data), "",
              "Each method against the known-association bound of its own sensors (an estimator's "
-             "`bound`: `oracle-kf` for GNSS + V2F, `oracle-pose` for GNSS + radar, "
+             "`bound`: `oracle-kf` for GNSS + V2F (+ odometry), `oracle-pose` for GNSS + radar, "
              "`oracle-pose-smoother` for the smoothed factor graphs, `kf-known-da` for GNSS alone): "
              "RMSE (ratio × that bound); \"no bound\" where cooploc has none or it did not run; "
              "† where the method also reads a kind that bound leaves aside (e.g. radar), so the "
