@@ -3,6 +3,7 @@
     python benchmarks/oracle_kf.py                        # paper presets, SUMO presets, city case
     python benchmarks/oracle_kf.py --quick --out b.json   # tiny sizes, to check the script
     python benchmarks/oracle_kf.py --presets sumo-braunschweig-tlr --dense-steps 100
+    python benchmarks/oracle_kf.py --presets --tiles 0 --odometry sumo-grid-tlr --duration 60
 
 Measured in one process, on the same recordings (time inside `step` only):
 
@@ -19,6 +20,12 @@ Measured in one process, on the same recordings (time inside `step` only):
    the component form is the `≤ 0.1 s with 1000 vehicles and 2000 features` case. The
    dense form is not run there (D = 12 096 states: a 1.2 GB covariance and ~10¹² flops
    a step).
+3. Odometry (`--odometry`, SUMO presets): the same traffic and rows with and without
+   ``odometry=true`` (the odometry rows have a random stream of their own, so every other
+   row is the same), the component form run on both alternately `--repeats` times:
+   steps per second of each (the fastest repeat) and their ratio, which stochastic
+   cloning costs; the largest difference between the two forms with odometry over the
+   first `--dense-steps` steps.
 
 Every pass runs with `--threads` BLAS threads (default 1, `backends.limit_threads`), as
 the workers of `cooploc run` run an estimator: on a shared machine OpenBLAS threads that
@@ -108,6 +115,42 @@ def time_preset(name: str, seed: int, dense_steps: int, overrides: dict | None =
     return out
 
 
+# -- odometry ------------------------------------------------------------------------
+
+
+def time_odometry(name: str, seed: int, dense_steps: int, repeats: int,
+                  overrides: dict | None = None) -> dict:
+    """Steps per second of the component form with and without odometry on the same traffic."""
+    from cooploc.scenarios.sumo import SumoNotInstalledError
+
+    try:
+        recs = {flag: recording(name, seed, {**(overrides or {}), "odometry": flag})
+                for flag in (False, True)}
+    except SumoNotInstalledError as exc:
+        print(f"{name}: skipped ({exc})")
+        return {"skipped": str(exc)}
+    warm_up(recs[True])
+    seconds: dict[bool, list[float]] = {False: [], True: []}
+    for _ in range(repeats):   # alternate, so that a change of load hits both alike
+        for flag in (False, True):
+            seconds[flag].append(run_steps(new_estimator("oracle-kf", recs[flag]), recs[flag].frames)[0])
+    n = len(recs[True].frames)
+    out = {"steps": n, "odometry_rows": int(sum(len(f.batches["odometry"]) for f in recs[True].frames)),
+           "repeats": repeats, "seconds_without": seconds[False], "seconds_with": seconds[True],
+           "steps_per_second_without": n / min(seconds[False]),
+           "steps_per_second_with": n / min(seconds[True]),
+           "time_ratio_with_to_without": min(seconds[True]) / min(seconds[False])}
+    prefix = recs[True].frames[:dense_steps]
+    if prefix:
+        _, sparse = run_steps(new_estimator("oracle-kf", recs[True]), prefix)
+        _, dense = run_steps(new_estimator("oracle-kf", recs[True], OracleKFParams(dense=True)), prefix)
+        out["prefix"] = {"steps": len(prefix), **forms_difference(sparse, dense)}
+    print(f"{name} odometry: {out['steps_per_second_with']:.1f} steps/s with, "
+          f"{out['steps_per_second_without']:.1f} without (time ×{out['time_ratio_with_to_without']:.2f})"
+          + (f"; max rel difference to dense {out['prefix']['max_rel_difference']:.2g}" if prefix else ""))
+    return out
+
+
 # -- the city case ------------------------------------------------------------------
 
 VEHICLE_STRIDE, FEATURE_STRIDE = 100, 10_000   # id shift per tile (crossroad features are 1000 + k)
@@ -175,19 +218,32 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--dense-steps", type=int, default=60,
                         help="steps of the dense form compared per preset (0: none)")
     parser.add_argument("--tiles", type=int, default=CITY_TILES, help="crossroads of the city case (0: none)")
+    parser.add_argument("--odometry", nargs="*", default=["sumo-grid-tlr", "sumo-braunschweig-tlr"],
+                        help="SUMO presets timed with and without odometry")
+    parser.add_argument("--duration", type=float, default=None,
+                        help="seconds of traffic of the odometry runs (default: the preset's)")
+    parser.add_argument("--repeats", type=int, default=3, help="alternate runs of the odometry case")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--threads", type=int, default=1, help="BLAS threads (1: as a run's worker)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes: check that the script runs")
     args = parser.parse_args(argv)
     presets, tiles, dense_steps = args.presets, args.tiles, args.dense_steps
+    odometry, repeats = args.odometry, args.repeats
     overrides: dict[str, dict] = {}
+    odometry_overrides = {} if args.duration is None else {"duration": args.duration}
     if args.quick:
+        from cooploc.scenarios.sumo import TINY_GRID
+
         presets, tiles, dense_steps = list(PAPER_PRESETS), min(tiles, 3), min(dense_steps, 8)
         overrides = {"froehle2018": {"n_steps": 20}, "brambilla-crossroad": {"n_steps": 8}}
+        odometry, repeats, odometry_overrides = ["sumo-grid-tlr"], 1, dict(TINY_GRID)
     results = {"environment": environment(), "threads": args.threads, "presets": {}}
     with limit_threads(args.threads):
         for name in presets:
             results["presets"][name] = time_preset(name, args.seed, dense_steps, overrides.get(name))
+        if odometry:
+            results["odometry"] = {name: time_odometry(name, args.seed, dense_steps, repeats,
+                                                       odometry_overrides) for name in odometry}
         if tiles:
             results["city"] = time_city(tiles, args.seed)
     write_json(results, args.out)

@@ -140,12 +140,12 @@ def test_presets_declare_their_bound():
         rng = np.random.default_rng(1)
         construct(get_estimator(preset.bound), recording.setup, None, rng, recording.truth)
     # the radar-pose bounds use every sensor of their scenarios; oracle-kf would leave the
-    # odometry and radar aside, so it bounds nothing there
+    # radar aside (it fuses the odometry), so it bounds nothing there
     for name in ("zhang2016-cv", "gulati-2v"):
         preset = get_preset(name)
         recording = preset.generate(np.random.default_rng(0), preset.params.with_overrides({"n_steps": 3}))
         assert unused_kinds(get_estimator(preset.bound), recording.setup) == ()
-    assert unused_kinds(get_estimator("oracle-kf"), recording.setup) == ("odometry", "radar")
+    assert unused_kinds(get_estimator("oracle-kf"), recording.setup) == ("radar",)
 
 
 def test_default_presets_leave_out_the_sumo_cities():

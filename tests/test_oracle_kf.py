@@ -23,8 +23,9 @@ from scipy.linalg import block_diag, solve
 from cooploc.errors import ConfigError
 from cooploc.estimators import get_estimator, make_estimator
 from cooploc.estimators.oracle_kf import OracleKFParams
+from cooploc.sensors import Odometry
 from cooploc.testing import CheckSkipped, sumo_traffic, with_empty_frames
-from cooploc.types import AssociationTruth, Estimate, Recording
+from cooploc.types import AssociationTruth, Batch, Estimate, Frame, Recording
 from helpers import froehle_recording, position_errors, preset_recording, run_estimator, with_traffic
 
 # Dense conditioning of a ≤ 64-dimensional joint Gaussian vs a recursive Joseph-form
@@ -331,3 +332,148 @@ def test_components_merge_only_when_rows_couple_them(seed: int) -> None:
         assert set(est._filter.alone_ids.tolist()) == {0, 1} - seen, k
         assert sorted(map(sorted, members)) == ([sorted(seen)] if seen else []), k
     assert seen == {0, 1}
+
+
+# ----------------------------------------------------------------------------
+# odometry: z = H x_k − H x_{k−1} + w (Gulati eq. 4), fused by stochastic cloning
+# ----------------------------------------------------------------------------
+
+ODOMETRY_VARIANCE = 0.05   # m² per axis: as informative as the good vehicle's GNSS over a step
+
+
+def with_odometry(rec: Recording, seed, variance: float = ODOMETRY_VARIANCE, repeat: int = 1) -> Recording:
+    """`rec` with an odometry sensor and, at every step k ≥ 1, `repeat` rows
+    z = H x_k − H x_{k−1} + w, w ~ N(0, `variance` I₂), of every vehicle present at k − 1 and k
+    (and, to check that they are ignored, of every vehicle that enters at k)."""
+    rng = np.random.default_rng(seed)
+    setup, truth = rec.setup, rec.truth
+    sensor = Odometry(default_cov=variance * np.eye(2))
+    H = sensor.observation_matrix(setup.vehicle_layout.dim)
+    frames, origins = [], []
+    for k, frame in enumerate(rec.frames):
+        ids = np.repeat(frame.vehicles if k else np.zeros(0, np.int64), repeat)
+        col = np.searchsorted(truth.vehicle_ids, ids)
+        delta = (truth.vehicle_states[k, col] - truth.vehicle_states[max(k - 1, 0), col]) @ H.T
+        z = delta + np.sqrt(variance) * rng.standard_normal(delta.shape)
+        rows = Batch(z, np.repeat(variance * np.eye(2)[None], ids.size, axis=0), ids, ids)
+        frames.append(Frame(k, frame.t, frame.vehicles, {**frame.batches, "odometry": rows}, frame.links))
+        origins.append({**truth.origin[k], "odometry": ids})
+    return Recording(dataclasses.replace(setup, sensors={**setup.sensors, "odometry": sensor}), frames,
+                     dataclasses.replace(truth, origin=origins))
+
+
+def least_squares_last_state(rec: Recording) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """The marginal p(θ_{T−1} | every row) of the last state by batch least squares.
+
+    Unknowns: X = [θ_0; …; θ_{T−1}], θ_k the state of every vehicle and feature of the
+    setup's priors. Every factor adds to the information (Λ, η) of X — the prior of θ_0,
+    each motion step θ_k − F θ_{k−1} ~ N(0, Q), each GNSS, V2F and odometry row
+    z = C X + w ~ N(0, R): Λ += Cᵀ R⁻¹ C, η += Cᵀ R⁻¹ z — and X = Λ⁻¹ η, Cov X = Λ⁻¹,
+    solved with numpy over all states jointly. An odometry row counts where its vehicle was
+    present at k − 1 too (the filter has nothing to relate it to otherwise).
+    """
+    setup, truth = rec.setup, rec.truth
+    vp, fp = setup.vehicle_prior, setup.feature_prior
+    ids = np.concatenate([vp.ids, fp.ids])
+    d, T = 4, len(rec.frames)
+    D = d * ids.size
+    at = {int(i): d * j for j, i in enumerate(ids)}
+    Lam, eta = np.zeros((T * D, T * D)), np.zeros(T * D)
+
+    def add(C: np.ndarray, z: np.ndarray, R: np.ndarray) -> None:   # a factor z = C X + w
+        RC = np.linalg.solve(R, C)
+        Lam[...] += C.T @ RC
+        eta[...] += RC.T @ z
+
+    P0 = block_diag(*vp.cov, *fp.cov)
+    add(np.eye(D, T * D), np.concatenate([vp.mean.ravel(), fp.mean.ravel()]), P0)
+    F = block_diag(*[setup.vehicle_motion.transition_matrix(setup.dt)] * vp.ids.size,
+                   *[setup.feature_motion.transition_matrix(setup.dt)] * fp.ids.size)
+    Q = block_diag(*[setup.vehicle_motion.noise_covariance(setup.dt)] * vp.ids.size,
+                   *[setup.feature_motion.noise_covariance(setup.dt)] * fp.ids.size)
+    for k in range(1, T):   # 0 = θ_k − F θ_{k−1} − v_k
+        C = np.zeros((D, T * D))
+        C[:, (k - 1) * D:k * D], C[:, k * D:(k + 1) * D] = -F, np.eye(D)
+        add(C, np.zeros(D), Q)
+    H = np.eye(2, d)
+    for k, frame in enumerate(rec.frames):
+        origin = truth.origin[k]
+        gnss, v2f, odometry = (frame.batches.get(kind) for kind in ("gnss", "v2f", "odometry"))
+        rows = [([(k, int(gnss.subject[m]), H)], gnss.z[m], gnss.cov[m]) for m in range(len(gnss))]
+        rows += [([(k, int(origin["v2f"][m]), H), (k, int(v2f.sensor[m]), -H)], v2f.z[m], v2f.cov[m])
+                 for m in range(len(v2f)) if origin["v2f"][m] >= 0]
+        if k and odometry is not None:
+            rows += [([(k, int(s), H), (k - 1, int(s), -H)], odometry.z[m], odometry.cov[m])
+                     for m, s in enumerate(odometry.subject) if s in rec.frames[k - 1].vehicles]
+        for terms, z, R in rows:
+            C = np.zeros((2, T * D))
+            for step, entity, Hm in terms:
+                C[:, step * D + at[entity]:step * D + at[entity] + d] += Hm
+            add(C, z, R)
+    cov = np.linalg.inv(Lam)[-D:, -D:]          # the last state's marginal: a block of Λ⁻¹
+    mean = np.linalg.solve(Lam, eta)[-D:]
+    return {i: (mean[a:a + d], cov[a:a + d, a:a + d]) for i, a in at.items()}
+
+
+@pytest.mark.parametrize("dense", [False, True])
+@pytest.mark.parametrize("case", range(5))
+def test_odometry_gives_the_least_squares_estimate(seed: int, case: int, dense: bool) -> None:
+    # froehle2018 (GNSS, V2F, priors on everything) with odometry rows: the filtered
+    # estimate of the last step is the batch least-squares marginal of the last state.
+    # Cases: plain (twice); two rows per vehicle (they share one clone); vehicle 1 without
+    # V2F rows until step 3, so alone (its odometry by `kf_update_relative`) until it joins a
+    # component with its clone; the same with two rows (alone, it becomes a component first).
+    alone, repeat = [(False, 1), (False, 1), (False, 2), (True, 1), (True, 2)][case]
+    rec = froehle_recording([seed, 60, case], n_steps=5, n_features=2)
+    if alone:
+        rec = keep_v2f_rows(rec, lambda k, origin: (rec.frames[k].batches["v2f"].sensor != 1) | (k >= 3))
+    rec = with_odometry(rec, [seed, 61, case], repeat=repeat)
+    want = least_squares_last_state(rec)
+    last = run_estimator("oracle-kf", rec, params=OracleKFParams(dense=dense))[-1]
+    for states in (last.vehicles, last.features):
+        for i, entity in enumerate(states.ids.tolist()):
+            mean, cov = want[entity]
+            np.testing.assert_allclose(states.mean[i], mean, rtol=BATCH_RTOL,
+                                       atol=BATCH_RTOL * np.abs(mean).max(), err_msg=f"mean of {entity}")
+            np.testing.assert_allclose(states.cov[i], cov, rtol=BATCH_RTOL,
+                                       atol=BATCH_RTOL * np.abs(cov).max(), err_msg=f"cov of {entity}")
+
+
+def test_odometry_changes_the_estimate(seed: int) -> None:
+    rec = froehle_recording([seed, 62], n_steps=10)
+    with_rows = run_estimator("oracle-kf", with_odometry(rec, [seed, 63]))[-1]
+    without = run_estimator("oracle-kf", rec)[-1]
+    # σ² = 0.05 m² odometry beside vehicle 1's 15 m² GNSS: its position variance shrinks
+    assert (np.trace(with_rows.vehicles.cov[1, :2, :2]) < 0.9 * np.trace(without.vehicles.cov[1, :2, :2]))
+    assert np.abs(with_rows.vehicles.mean - without.vehicles.mean).max() > 1e-3
+
+
+@pytest.mark.parametrize("dense", [False, True])
+def test_odometry_of_vehicles_entering_and_leaving(seed: int, dense: bool) -> None:
+    # vehicle 1 enters at step 2 (no prior kept: born from its first fix) and vehicle 0 is
+    # away at steps 5–6; both have odometry rows on the steps they (re-)enter, which have
+    # nothing at k − 1 to relate to: the batch least squares leaves them out, as must the filter
+    rec = with_traffic(froehle_recording([seed, 64], n_steps=9, n_features=2), {1: range(2), 0: [5, 6]},
+                       keep_prior=True)
+    rec = with_odometry(rec, [seed, 65])
+    estimates = run_estimator("oracle-kf", rec, params=OracleKFParams(dense=dense))
+    for e in estimates:
+        assert np.isfinite(e.vehicles.mean).all() and np.isfinite(e.vehicles.cov).all()
+    assert forms_difference(rec) < FORMS_RTOL
+
+
+def test_components_equal_dense_with_odometry_on_sumo_traffic(seed: int) -> None:
+    # vehicles alone and in components, entering and leaving, with odometry rows
+    from cooploc.scenarios.sumo import TINY_GRID, SumoNotInstalledError
+    try:
+        rec = preset_recording("sumo-grid-tlr", [seed, 66], {**TINY_GRID, "odometry": True})
+    except SumoNotInstalledError as exc:
+        pytest.skip(str(exc))
+    assert sum(len(f.batches["odometry"]) for f in rec.frames) > 0
+    assert forms_difference(rec) < FORMS_RTOL
+
+
+def test_components_equal_dense_with_odometry_on_gulati(seed: int) -> None:
+    # GNSS and odometry, no features: every vehicle alone (kf_update_relative) in the component form
+    rec = preset_recording("gulati-2v", [seed, 67], {"n_steps": 30})
+    assert forms_difference(rec) < FORMS_RTOL

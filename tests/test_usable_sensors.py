@@ -23,7 +23,7 @@ def zhang():
 
 @pytest.mark.parametrize("name, reads", [
     ("gnss-kf", "gnss (gnss-position), odometry (odometry)"),
-    ("oracle-kf", "gnss (gnss-position), v2f (relative-position)"),
+    ("oracle-kf", "gnss (gnss-position), v2f (relative-position), odometry (odometry)"),
     ("icp", "gnss (gnss-position), odometry (odometry), v2f (relative-position)"),
     ("icp-da-lc", "gnss (gnss-position), odometry (odometry), v2f (relative-position)"),
     ("icp-da-pf", "gnss (gnss-position), odometry (odometry), v2f (relative-position)"),

@@ -212,7 +212,7 @@ def scenario_table(p: ScenarioPlan, folder: Path) -> dict[str, Any]:
             if why:
                 row["own_bound_note"] = why
             # a bound is one only for the sensors it reads: a method that also reads a kind
-            # the bound leaves aside (e.g. odometry) may legitimately beat it
+            # the bound leaves aside (e.g. radar) may legitimately beat it
             for key, ref in (("beyond_bound", p.bound), ("beyond_own_bound", own)):
                 extra = _kinds_beyond(rows, name, ref)
                 if extra:
@@ -277,10 +277,10 @@ def markdown(data: Mapping[str, Any]) -> str:
              "estimator cannot run there (the reason is in the scenario's table).", "",
              *overview(data), "",
              "Each method against the known-association bound of its own sensors (an estimator's "
-             "`bound`: `oracle-kf` for GNSS + V2F, `oracle-pose` for GNSS + radar, "
+             "`bound`: `oracle-kf` for GNSS + V2F (+ odometry), `oracle-pose` for GNSS + radar, "
              "`oracle-pose-smoother` for the smoothed factor graphs, `kf-known-da` for GNSS alone): "
              "RMSE (ratio × that bound); \"no bound\" where cooploc has none or it did not run; "
-             "† where the method also reads a kind that bound leaves aside (e.g. odometry), so the "
+             "† where the method also reads a kind that bound leaves aside (e.g. radar), so the "
              "bound is not one for it there (the scenario's table names the kind).", "",
              *own_bounds_overview(data), "",
              f"90 % interval: {data['interval_90']}. "

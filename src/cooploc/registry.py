@@ -42,7 +42,7 @@ before it existed) is taken to use whatever it is given.
 
 The bound of an estimator's own sensors. `bound` (optional) names the registered
 known-association estimator that reads the same sensors — what the method could reach
-if it knew the association (``"oracle-kf"`` for GNSS + V2F, ``"oracle-pose"`` for GNSS
+if it knew the association (``"oracle-kf"`` for GNSS + V2F (+ odometry), ``"oracle-pose"`` for GNSS
 + radar, ``"kf-known-da"`` for GNSS alone), or None where cooploc has none. `cooploc
 compare` gives each method's RMSE also as a ratio to it, beside the scenario's bound
 (`Preset.bound`), which reads the scenario's main sensors: on a city with every

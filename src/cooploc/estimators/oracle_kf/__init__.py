@@ -2,12 +2,24 @@
 
 One Kalman filter over the stacked state θ = [x_1; …; x_S; f_1; …; f_K] of every
 vehicle and feature (Fröhle §III, eq. (9) with the association variables fixed to
-their true values), fed every GNSS row and every V2F row whose true origin is read from
-`Truth.origin`. For the linear-Gaussian scenarios (Fröhle §V) this is the exact MMSE
-estimator given the association, so no estimator that must also infer the
-association can beat it beyond Monte Carlo noise. Fröhle §V-B compares its loopy BP
-with "a centralized Kalman filter over the joint total state"; Brambilla 2020 calls
-the same reference "ICP with known DA".
+their true values), fed every GNSS row (z = H x_s + w), every V2F row whose true origin
+is read from `Truth.origin` (z = H f_k − H x_s + w, Fröhle eq. 1) and, where the
+scenario has the odometry sensor, every odometry row z = H x_k − H x_{k−1} + w of a
+vehicle (Gulati 2017 eq. 4; `sensors.Odometry`). For the linear-Gaussian scenarios
+(Fröhle §V) this is the exact MMSE estimator given the association, so no estimator
+that must also infer the association can beat it beyond Monte Carlo noise.
+
+Odometry relates two states, so it is fused exactly by stochastic cloning (Roumeliotis &
+Burdick 2002; `gaussian.kf_update_relative`, as `gnss-kf` and `oracle-pose` do): before
+the prediction, c = H x_{k−1} of every vehicle in the state (present at k − 1 and k)
+with an odometry row joins the joint state with all its correlations — with the
+vehicle, the other vehicles and the features — is kept static by the prediction, and
+the row z = H x_k − c + w is one more linear row of the update; then c is marginalised
+out. A vehicle entering at k (no state at k − 1) or without a row gets no odometry
+update. Where the scenario has no odometry sensor nothing changes, bit for bit.
+
+Fröhle §V-B compares its loopy BP with "a centralized Kalman filter over the joint total
+state"; Brambilla 2020 calls the same reference "ICP with known DA".
 
 It reads only the association (`AssociationTruth`: origins and infrastructure poses),
 never true states. Clutter rows (origin −1) are discarded — the oracle knows them.
@@ -51,8 +63,9 @@ __all__ = ["OracleKF", "OracleKFParams"]
 class OracleKF:
     """Joint Kalman filter over all vehicles and features with the true association.
 
-    Uses: identified GNSS rows and V2F rows (their true origins). Anonymous GNSS, radar,
-    odometry and AoA it does not fuse: where a scenario has those it is no bound.
+    Uses: identified GNSS rows, V2F rows (their true origins) and odometry rows. Anonymous
+    GNSS, radar and AoA it does not fuse: where a scenario has those it is no bound for
+    the methods that read them.
     """
 
     name: ClassVar[str] = "oracle-kf"
@@ -65,7 +78,7 @@ class OracleKF:
     needs_truth: ClassVar[bool] = True
     default_preset: ClassVar[str] = "froehle2018"
     usable_sensors: ClassVar[Mapping[str, tuple[str, ...]]] = {
-        "gnss": ("gnss-position",), "v2f": ("relative-position",)}
+        "gnss": ("gnss-position",), "v2f": ("relative-position",), "odometry": ("odometry",)}
 
     @staticmethod
     def memory_bytes(sizes: Sizes, params: OracleKFParams) -> float:

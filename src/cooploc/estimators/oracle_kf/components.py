@@ -21,17 +21,28 @@ One step
 --------
 1. Marginalise out the vehicles that left and the features unseen for
    `feature_timeout` steps.
-2. Predict each component with the block-diagonal motion model, P⁻ = F P Fᵀ + Q block
-   by block: O(D² d) for D states of entities of dimension d, not the O(D³) of a dense F
-   (`_matrix_kernels.congruence_blocks`: one pass over P, each block F_a P_ab F_bᵀ
-   written to both triangles, so P⁻ is exactly symmetric). Q of every component's
-   entities comes from one call of the motion model.
+2. Clone for the odometry (where the scenario has it; Gulati eq. 4,
+   z = H x_k − H x_{k−1} + w), stochastic cloning: every vehicle of a component with an
+   odometry row gets its clone c = H x_{k−1} appended to the component — an entity of
+   kind CLONE, with mean H x and the rows and columns A P, A P Aᵀ of the joint
+   (`_with_clones`), so correlated with everything the vehicle is. An alone vehicle with
+   one row keeps its belief at k − 1 and is updated by `gaussian.kf_update_relative`
+   before its GNSS row (exact: it is independent of all else); promoted to a component
+   this step (step 4), it takes its clone along; with several rows it becomes a
+   component first. Then predict each component with the block-diagonal motion model,
+   P⁻ = F P Fᵀ + Q block by block (a clone is static: identity, no noise, so its
+   cross-covariance becomes F P Aᵀ): O(D² d) for D states of entities of dimension d, not
+   the O(D³) of a dense F (`_matrix_kernels.congruence_blocks`: one pass over P, each
+   block F_a P_ab F_bᵀ written to both triangles, so P⁻ is exactly symmetric). Q of every
+   component's entities comes from one call of the motion model.
 3. Append the entering vehicles (alone) and the features seen for the first time
    (`births`), each a component of its own.
 4. Merge the components that this step's V2F rows link (connected components of the
    graph whose nodes are the components and whose edges are the rows).
-5. Update each component with its rows in information form, on the r coordinates the
-   rows observe, y = Eᵀθ (the position of each observed entity). The rows add
+5. Update each component with its rows — GNSS, V2F and odometry (z = H x_k − c + w) — in
+   information form, on the r coordinates the rows observe, y = Eᵀθ (the position of
+   each observed entity, all of a clone); the clones are then marginalised out
+   (dropped). The rows add
    J = Σ Hᵀ R⁻¹ H (r × r) and a = Σ Hᵀ R⁻¹ ν to the information of y, ν = z − H θ⁻ the
    innovations. With G = Eᵀ P⁻ E (r × r), Woodbury's identity gives the covariance form
 
@@ -68,7 +79,14 @@ import numpy as np
 
 from cooploc.estimators.base import birth_beliefs, checked_states
 from cooploc.estimators.oracle_kf.births import feature_births
-from cooploc.gaussian import Gaussians, block_diagonal, kf_predict, kf_update_nis, symmetrize
+from cooploc.gaussian import (
+    Gaussians,
+    block_diagonal,
+    kf_predict,
+    kf_update_nis,
+    kf_update_relative,
+    symmetrize,
+)
 from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup
 
 if TYPE_CHECKING:
@@ -76,7 +94,8 @@ if TYPE_CHECKING:
 
 __all__ = ["Component", "ComponentFilter"]
 
-VEHICLE, FEATURE = 0, 1
+VEHICLE, FEATURE, CLONE = 0, 1, 2   # CLONE: H x_{k−1} of a vehicle with an odometry row, for one step
+N_KINDS = 3
 
 
 @dataclass
@@ -85,8 +104,9 @@ class Component:
 
     Attributes
     ----------
-    kind : (n,) VEHICLE or FEATURE of each entity.
-    ids : (n,) the entity ids (vehicle and feature ids may overlap: `kind` tells them apart).
+    kind : (n,) VEHICLE, FEATURE or CLONE of each entity.
+    ids : (n,) the entity ids (vehicle and feature ids may overlap: `kind` tells them apart; a
+        clone has its vehicle's id).
     start : (n,) index of each entity's first state component in `mean`.
     mean : (D,) stacked state.
     cov : (D, D) joint covariance.
@@ -105,11 +125,11 @@ class Component:
         return self.start[entities, None] + np.arange(dim)
 
     def of_kind(self, kind: int | None, dims: IntArray) -> tuple[IntArray, IntArray]:
-        """(positions, (n, d) state indices) of the entities of `kind` (None: all, where both
-        kinds have one dimension), kept with the component: its entities never change
-        (merging and marginalising make new ones)."""
+        """(positions, (n, d) state indices) of the entities of `kind` (None: the vehicles and
+        features, where both have one dimension), kept with the component: its entities never
+        change (merging, cloning and marginalising make new ones)."""
         if kind not in self._of_kind:
-            entities = np.arange(self.kind.size) if kind is None else np.flatnonzero(self.kind == kind)
+            entities = np.flatnonzero(self.kind < CLONE if kind is None else self.kind == kind)
             dim = int(dims[VEHICLE if kind is None else kind])
             self._of_kind[kind] = entities, self.indices(entities, dim)
         return self._of_kind[kind]
@@ -152,6 +172,20 @@ def _merge(parts: Sequence[Component], dims: IntArray) -> Component:
         at += p.mean.size
     return Component(kind, np.concatenate([p.ids for p in parts]), _starts(kind, dims),
                      np.concatenate([p.mean for p in parts]), cov)
+
+
+def _with_clones(c: Component, vehicles: IntArray, H: FloatArray, dims: IntArray) -> Component:
+    """`c` with the clones c_j = H x_{e_j} of its vehicles at positions `vehicles` appended
+    (stochastic cloning): with c = A θ, the joint of [θ; c] has mean [θ; A θ] and covariance
+    [[P, P Aᵀ], [A P, A P Aᵀ]] — the clones correlated with every entity of `c`."""
+    idx = c.indices(vehicles, int(dims[VEHICLE]))                     # (n, dx)
+    n, do, D = vehicles.size, H.shape[0], c.mean.size
+    cross = (c.cov[:, idx] @ H.T).reshape(D, n * do)                   # P Aᵀ
+    clone_cov = np.einsum("ai,nik->nak", H, cross[idx]).reshape(n * do, n * do)   # A P Aᵀ
+    kind = np.concatenate([c.kind, np.full(n, CLONE)])
+    return Component(kind, np.concatenate([c.ids, c.ids[vehicles]]), _starts(kind, dims),
+                     np.concatenate([c.mean, (c.mean[idx] @ H.T).ravel()]),    # [θ; H x]
+                     np.block([[c.cov, cross], [cross.T, symmetrize(clone_cov)]]))
 
 
 def _blocks_positive_definite(cov: FloatArray, c: Component, dims: IntArray) -> bool:
@@ -230,20 +264,24 @@ class ComponentFilter:
         self.setup, self.params, self.truth = setup, params, truth
         dx = setup.vehicle_layout.dim
         df = setup.feature_layout.dim if setup.feature_layout is not None else 0
-        self.dims = np.array([dx, df])
+        odometry = setup.sensors.get("odometry")
+        self.Ho = None if odometry is None else odometry.observation_matrix(dx)
+        do = 0 if self.Ho is None else self.Ho.shape[0]
+        self.dims = np.array([dx, df, do])
         self.motion = (setup.vehicle_motion, setup.feature_motion)
         self.F = tuple(m.transition_matrix(setup.dt) if m is not None else None for m in self.motion)
-        self._F_blocks = np.zeros((2, self.dims.max(), self.dims.max()))   # per kind, zero padded
+        self._F_blocks = np.zeros((N_KINDS, self.dims.max(), self.dims.max()))   # per kind, zero padded
         for kind, F in enumerate(self.F):
             if F is not None and self.dims[kind]:
                 self._F_blocks[kind, :F.shape[0], :F.shape[1]] = F
+        self._F_blocks[CLONE, :do, :do] = np.eye(do)                   # a clone is static
         self.Hg = (setup.sensors["gnss"].observation_matrix(dx) if "gnss" in setup.sensors else None)
         v2f = setup.sensors.get("v2f")
         self.Hx = v2f.observation_matrix(dx) if v2f is not None and df else None
         self.Hf = v2f.observation_matrix(df) if v2f is not None and df else None
         # the state components any row observes, per kind: the coordinates y of the update
-        used = [np.zeros(dx, bool), np.zeros(df, bool)]
-        for kind, H in ((VEHICLE, self.Hg), (VEHICLE, self.Hx), (FEATURE, self.Hf)):
+        used = [np.zeros(dx, bool), np.zeros(df, bool), np.ones(do, bool)]   # a clone: all of it
+        for kind, H in ((VEHICLE, self.Hg), (VEHICLE, self.Hx), (FEATURE, self.Hf), (VEHICLE, self.Ho)):
             if H is not None:
                 used[kind] |= (H != 0).any(axis=0)
         self.observed_cols = tuple(np.flatnonzero(u) for u in used)
@@ -256,6 +294,8 @@ class ComponentFilter:
         self._lookup: tuple[IntArray, IntArray, IntArray] | None = None
         self._present: IntArray | None = None   # the vehicles of the previous step
         self._Q: list[FloatArray | None] = [None, None]   # Q of a model whose noise is constant
+        self._cloned: IntArray = np.zeros(0, dtype=np.int64)   # this step's vehicles with clones
+        self._previous: tuple[IntArray, Gaussians] | None = None   # alone cloned vehicles at k − 1
 
     # -- one step -------------------------------------------------------------------
 
@@ -263,6 +303,7 @@ class ComponentFilter:
         k = frame.k
         present = frame.vehicles
         self._forget(present, k)
+        self._clone(frame)
         self._predict()
         self._enter(frame, present)
         origin = self.truth.origin[k].get("v2f")
@@ -279,6 +320,7 @@ class ComponentFilter:
             self._couple(v2f.sensor[rows], origin[rows],
                          gnss.subject[gnss_rows] if gnss_rows.size else gnss_rows)
         nis = self._update(frame, gnss_rows, rows, origin)
+        self._drop_clones()
         return self._estimate(nis)
 
     def _forget(self, present: IntArray, k: int) -> None:
@@ -300,6 +342,51 @@ class ComponentFilter:
             elif keep.any():
                 kept.append(_select(c, keep, self.dims))
         self.components = kept
+
+    def _clone(self, frame: Frame) -> None:
+        """Stochastic cloning of H x_{k−1}, before the prediction, for every vehicle in the state
+        (so present at k − 1 and at k) with an odometry row: a vehicle of a component gets its
+        clone in the component (`_with_clones`); an alone vehicle with one row keeps its belief
+        at k − 1 for `kf_update_relative`, one with several rows becomes a component first."""
+        self._cloned, self._previous = np.zeros(0, dtype=np.int64), None
+        odometry = frame.batches.get("odometry")
+        if self.Ho is None or odometry is None or not len(odometry):
+            return
+        subjects, counts = np.unique(odometry.subject, return_counts=True)
+        several = np.isin(self.alone_ids, subjects[counts > 1])
+        if several.any():
+            self.components += _singletons(VEHICLE, self.alone_ids[several], self.alone.take(several),
+                                           self.dims)
+            self.alone_ids, self.alone = self.alone_ids[~several], self.alone.take(~several)
+            self._lookup = None
+        keys, comp, pos = self._table()
+        if not keys.size:
+            return
+        at = np.minimum(np.searchsorted(keys, subjects * N_KINDS + VEHICLE), keys.size - 1)
+        known = keys[at] == subjects * N_KINDS + VEHICLE
+        self._cloned = subjects[known]
+        if not self._cloned.size:
+            return
+        comp, pos = comp[at[known]], pos[at[known]]
+        alone = comp < 0
+        if alone.any():
+            self._previous = (self._cloned[alone], self.alone.take(pos[alone]))
+        order = np.argsort(comp, kind="stable")
+        comp, pos = comp[order], pos[order]
+        starts = np.flatnonzero(np.r_[True, np.diff(comp) != 0])
+        for first, end in zip(starts.tolist(), np.r_[starts[1:], comp.size].tolist(), strict=True):
+            i = int(comp[first])
+            if i >= 0:   # the vehicles of component i
+                self.components[i] = _with_clones(self.components[i], pos[first:end], self.Ho, self.dims)
+        self._lookup = None
+
+    def _drop_clones(self) -> None:
+        """Marginalise the clones out once the odometry rows are fused."""
+        if not self._cloned.size:
+            return
+        self.components = [_select(c, c.kind != CLONE, self.dims) if (c.kind == CLONE).any() else c
+                           for c in self.components]
+        self._cloned, self._previous, self._lookup = np.zeros(0, dtype=np.int64), None, None
 
     def _predict(self) -> None:
         """θ⁻ = F θ, P⁻ = F P Fᵀ + Q, block by block (F and Q are block diagonal)."""
@@ -378,15 +465,12 @@ class ComponentFilter:
         """Merge the components that V2F rows (sensor, feature) link.
 
         Alone vehicles that sense a feature, or that have more than one GNSS row (the
-        batch update takes one row per vehicle), become components first.
+        batch update takes one row per vehicle), become components first (`_promote`).
         """
         subjects, counts = np.unique(gnss_subjects, return_counts=True)
         promote = np.isin(self.alone_ids, sensors) | np.isin(self.alone_ids, subjects[counts > 1])
         if promote.any():
-            self.components += _singletons(VEHICLE, self.alone_ids[promote],
-                                                self.alone.take(promote), self.dims)
-            self.alone_ids, self.alone = self.alone_ids[~promote], self.alone.take(~promote)
-            self._lookup = None
+            self._promote(promote)
         comp_v, _ = self._locate(VEHICLE, sensors)
         comp_f, _ = self._locate(FEATURE, features)
         links = np.unique(np.stack([comp_v, comp_f], axis=1)[comp_v != comp_f], axis=0)
@@ -409,17 +493,43 @@ class ComponentFilter:
         self.components = [parts[0] if len(parts) == 1 else _merge(parts, self.dims)
                            for parts in groups.values()]
 
+    def _promote(self, promote: np.ndarray) -> None:
+        """The alone vehicles `promote` (mask) become components of their own; one with a
+        clone (`_previous`: its belief N(m, P) at k − 1) takes it along, the joint of
+        [x_k; H x_{k−1}] with Cov(x_k, H x_{k−1}) = F P Hᵀ."""
+        ids, beliefs = self.alone_ids[promote], self.alone.take(promote)
+        self.alone_ids, self.alone = self.alone_ids[~promote], self.alone.take(~promote)
+        self._lookup = None
+        cloned = np.zeros(ids.size, bool)
+        if self._previous is not None:
+            previous_ids, previous = self._previous
+            cloned = np.isin(ids, previous_ids)
+        self.components += _singletons(VEHICLE, ids[~cloned], beliefs.take(~cloned), self.dims)
+        if not cloned.any():
+            return
+        previous = previous.take(np.searchsorted(previous_ids, ids[cloned]))
+        H, F, dx = self.Ho, self.F[VEHICLE], int(self.dims[VEHICLE])
+        predicted = beliefs.take(cloned)
+        cross = F @ previous.cov @ H.T                                   # Cov(x_k, H x_{k−1})
+        clone_cov = symmetrize(H @ previous.cov @ H.T)
+        kind = np.array([VEHICLE, CLONE])
+        for i, vehicle in enumerate(ids[cloned].tolist()):
+            self.components.append(Component(
+                kind, np.array([vehicle, vehicle]), np.array([0, dx]),
+                np.concatenate([predicted.mean[i], H @ previous.mean[i]]),
+                np.block([[predicted.cov[i], cross[i]], [cross[i].T, clone_cov[i]]])))
+
     # -- lookup -----------------------------------------------------------------------
 
     def _table(self) -> tuple[IntArray, IntArray, IntArray]:
-        """Every entity's key (2 id + kind), component (−1: alone) and position, sorted by key
+        """Every entity's key (N_KINDS id + kind), component (−1: alone) and position, sorted by key
         (kept until the membership changes: `_lookup = None`)."""
         if self._lookup is None:
             self._lookup = self._build_table()
         return self._lookup
 
     def _build_table(self) -> tuple[IntArray, IntArray, IntArray]:
-        keys = [self.alone_ids * 2 + VEHICLE] + [c.ids * 2 + c.kind for c in self.components]
+        keys = [self.alone_ids * N_KINDS + VEHICLE] + [c.ids * N_KINDS + c.kind for c in self.components]
         comp = [np.full(self.alone_ids.size, -1)] + [np.full(c.ids.size, i)
                                                     for i, c in enumerate(self.components)]
         pos = [np.arange(self.alone_ids.size)] + [np.arange(c.ids.size) for c in self.components]
@@ -430,7 +540,7 @@ class ComponentFilter:
     def _locate(self, kind: int, ids: IntArray) -> tuple[IntArray, IntArray]:
         """(component (−1: alone), position in it) of entities `ids` of `kind`."""
         keys, comp, pos = self._table()
-        at = np.searchsorted(keys, ids * 2 + kind)
+        at = np.searchsorted(keys, ids * N_KINDS + kind)
         return comp[at], pos[at]
 
     def _vehicle_means(self, ids: IntArray) -> FloatArray:
@@ -452,13 +562,30 @@ class ComponentFilter:
         """Update the alone vehicles in one batch and each component with its rows; (NIS, dof)."""
         nis, dof = 0.0, 0
         sensors: list[tuple[IntArray, _Rows]] = []   # per sensor: each row's component, the rows
+        odometry = frame.batches.get("odometry")
+        if self._cloned.size:   # z = H x_k − H x_{k−1} + w (Gulati eq. 4): alone vehicles
+            # first, before their GNSS rows change Cov(x_k, x_{k−1}) = F P
+            rows = np.flatnonzero(np.isin(odometry.subject, self._cloned))
+            comp, pos = self._locate(VEHICLE, odometry.subject[rows])
+            alone = comp < 0
+            if alone.any():
+                n, d = self._update_alone_odometry(odometry.subject[rows[alone]], pos[alone],
+                                                   odometry.z[rows[alone]], odometry.cov[rows[alone]])
+                nis, dof = nis + n, dof + d
+            coupled = rows[~alone]
+            if coupled.size:
+                _, pos_clone = self._locate(CLONE, odometry.subject[coupled])
+                do = self.Ho.shape[0]
+                terms = ((pos[~alone], self.Ho, VEHICLE), (pos_clone, -np.eye(do), CLONE))
+                sensors.append((comp[~alone], _Rows(odometry.z[coupled], odometry.cov[coupled], terms)))
         if gnss_rows.size:
             gnss = frame.batches["gnss"]
             comp, pos = self._locate(VEHICLE, gnss.subject[gnss_rows])
             z, R = gnss.z[gnss_rows], gnss.cov[gnss_rows]
             alone = comp < 0
             if alone.any():
-                nis, dof = self._update_alone(pos[alone], z[alone], R[alone])
+                n, d = self._update_alone(pos[alone], z[alone], R[alone])
+                nis, dof = nis + n, dof + d
             coupled = np.flatnonzero(~alone)
             if coupled.size:
                 sensors.append((comp[coupled], _Rows(z, R, ((pos, self.Hg, VEHICLE),)).take(coupled)))
@@ -474,6 +601,18 @@ class ComponentFilter:
             n, d = self._update_components(sensors)
             nis, dof = nis + n, dof + d
         return nis, dof
+
+    def _update_alone_odometry(self, ids: IntArray, pos: IntArray, z: FloatArray, R: FloatArray
+                               ) -> tuple[float, int]:
+        """Stochastic-cloning update (`kf_update_relative`) of the alone vehicles `ids` at `pos`
+        with one odometry row each, from their beliefs at k − 1 (`_previous`)."""
+        previous_ids, previous = self._previous
+        post, nis, _ = kf_update_relative(previous.take(np.searchsorted(previous_ids, ids)),
+                                          self.alone.take(pos), self.F[VEHICLE], z, self.Ho, R)
+        mean, cov = self.alone.mean.copy(), self.alone.cov.copy()
+        mean[pos], cov[pos] = post.mean, post.cov
+        self.alone = Gaussians(mean, cov)
+        return float(nis.sum()), int(z.size)
 
     def _update_alone(self, pos: IntArray, z: FloatArray, R: FloatArray) -> tuple[float, int]:
         """Joseph-form update of the alone vehicles at `pos`, one GNSS row each."""

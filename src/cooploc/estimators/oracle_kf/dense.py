@@ -5,7 +5,12 @@ leave are marginalised out (their rows and columns dropped), entering vehicles a
 newly seen features are appended with their prior (or a broad belief around their
 first fix), features unseen for `feature_timeout` steps are dropped; then one joint
 prediction and one joint Joseph-form update with all rows stacked (`kf_update_nis`,
-square-root form where the Joseph form fails). Cost O(D³ + D² m) for D = 4(S + K)
+square-root form where the Joseph form fails). Odometry rows (Gulati eq. 4) by
+stochastic cloning: before the prediction, the clones c = A θ (A picks H x_{k−1} of each
+vehicle with a row) are kept beside θ with Cov(c) = A P Aᵀ and Cov(θ, c) = P Aᵀ, which the
+prediction turns into F P Aᵀ (c is static) and the births and the sorting follow row by
+row; the update is that of [θ; c], with z = H x_k − c + w stacked with the other rows,
+and c is then dropped (marginalised out). Cost O(D³ + D² m) for D = 4(S + K)
 states and m measurement components, whatever the coupling: the component form
 (`components`) gives the same numbers where the coupling is sparse. Kept as the
 reference the tests compare with, and selectable with `dense=True`.
@@ -44,6 +49,14 @@ class DenseJointFilter:
         self._Fx = setup.vehicle_motion.transition_matrix(setup.dt)
         self._Ff = (setup.feature_motion.transition_matrix(setup.dt)
                     if setup.feature_motion is not None else None)
+        odometry = setup.sensors.get("odometry")
+        self._Ho = None if odometry is None else odometry.observation_matrix(self.dx)
+        # this step's clones c = H x_{k−1} (stochastic cloning): the vehicles cloned, their
+        # mean, covariance and cross-covariance with the state (rows follow the state's order)
+        self._clone_ids: IntArray = np.zeros(0, dtype=np.int64)
+        self._clone_mean: FloatArray = np.zeros(0)
+        self._clone_cov: FloatArray = np.zeros((0, 0))
+        self._clone_cross: FloatArray = np.zeros((0, 0))
 
     # -- state bookkeeping ---------------------------------------------------------
 
@@ -78,6 +91,10 @@ class DenseJointFilter:
             cov[:n_old_v, old_f] = self.cov[:nv, nv:]
             cov[old_f, :n_old_v] = self.cov[nv:, :nv]
         self.mean, self.cov = mean, cov
+        if self._clone_ids.size:  # the new blocks are uncorrelated with the clones
+            cross, width = self._clone_cross, self._clone_cross.shape[1]
+            self._clone_cross = np.concatenate([cross[:nv], np.zeros((n_new_v, width)), cross[nv:],
+                                                np.zeros((features.mean.size, width))])
         self.vehicle_ids = np.concatenate([self.vehicle_ids, vehicle_ids])
         self.feature_ids = np.concatenate([self.feature_ids, feature_ids])
         self.last_seen = np.concatenate([self.last_seen, np.full(feature_ids.size, k)])
@@ -93,7 +110,9 @@ class DenseJointFilter:
         self._keep(np.isin(self.vehicle_ids, present),
                    k - self.last_seen <= self.params.feature_timeout)
 
-        # predict every block already in the state (new ones start at their prior)
+        # clone the previous positions of the vehicles with odometry rows, then predict
+        # every block already in the state (new ones start at their prior)
+        self._clone(frame)
         self._predict()
 
         # vehicles that entered
@@ -132,8 +151,32 @@ class DenseJointFilter:
         idx = np.concatenate([(vstart[vo, None] + np.arange(self.dx)).ravel(),
                               (fstart[fo, None] + np.arange(self.df)).ravel()]).astype(np.int64)
         self.mean, self.cov = self.mean[idx], self.cov[np.ix_(idx, idx)]
+        if self._clone_ids.size:
+            self._clone_cross = self._clone_cross[idx]
         self.vehicle_ids, self.feature_ids = self.vehicle_ids[vo], self.feature_ids[fo]
         self.last_seen = self.last_seen[fo]
+
+    def _clone(self, frame: Frame) -> None:
+        """Stochastic cloning: c = H x_{k−1} of every vehicle in the state with an odometry row,
+        kept beside the state with its covariance and its cross-covariance P Aᵀ (c = A θ)."""
+        odometry = frame.batches.get("odometry")
+        self._clone_ids, self._clone_mean = np.zeros(0, dtype=np.int64), np.zeros(0)
+        if self._Ho is None or odometry is None or not len(odometry):
+            return
+        ids = np.intersect1d(odometry.subject, self.vehicle_ids)   # present at k − 1 and at k
+        if not ids.size:
+            return
+        do, D = self._Ho.shape[0], self.mean.size
+        vstart, _ = self._blocks()
+        s = np.searchsorted(self.vehicle_ids, ids)
+        A = np.zeros((ids.size, do, D))
+        A[np.arange(ids.size)[:, None, None], np.arange(do)[None, :, None],
+          (vstart[s, None] + np.arange(self.dx))[:, None, :]] = self._Ho
+        A = A.reshape(-1, D)
+        self._clone_ids = ids
+        self._clone_mean = A @ self.mean                            # c = H x_{k−1}
+        self._clone_cross = self.cov @ A.T                          # Cov(θ, c) = P Aᵀ
+        self._clone_cov = symmetrize(A @ self._clone_cross)         # Cov(c) = A P Aᵀ
 
     def _predict(self) -> None:
         if self.mean.size == 0:
@@ -152,10 +195,14 @@ class DenseJointFilter:
         F, Q = block_diagonal(*F_blocks), block_diagonal(*Q_blocks)
         self.mean = F @ self.mean                                  # θ⁻ = F θ
         self.cov = symmetrize(F @ self.cov @ F.T + Q)              # P⁻ = F P Fᵀ + Q
+        if self._clone_ids.size:
+            self._clone_cross = F @ self._clone_cross               # Cov(θ⁻, c) = F P Aᵀ (c is static)
 
     def _update(self, frame: Frame, v2f_rows: IntArray) -> tuple[float, int]:
-        """One Joseph-form update with every associated row stacked; (its NIS, its dof)."""
-        D = self.mean.size
+        """One Joseph-form update with every associated row stacked, of the state and this step's
+        clones (odometry rows z = H x_k − c + w, c = H x_{k−1}; Gulati eq. 4), which are then
+        marginalised out; (its NIS, its dof)."""
+        D = self.mean.size + self._clone_mean.size                 # θ, then the clones
         vstart, fstart = self._blocks()
         H_rows, z_rows, R_blocks = [], [], []
         gnss = frame.batches.get("gnss")
@@ -190,11 +237,30 @@ class DenseJointFilter:
             H_rows.append(H.reshape(-1, D))
             z_rows.append(v2f.z[rows].ravel())
             R_blocks.append(v2f.cov[rows])
+        odometry = frame.batches.get("odometry")
+        if self._clone_ids.size:
+            rows = np.flatnonzero(np.isin(odometry.subject, self._clone_ids))
+            s = np.searchsorted(self.vehicle_ids, odometry.subject[rows])
+            c = np.searchsorted(self._clone_ids, odometry.subject[rows])
+            do = self._Ho.shape[0]
+            H = np.zeros((rows.size, do, D))
+            m_idx, z_idx = np.arange(rows.size)[:, None, None], np.arange(do)[None, :, None]
+            H[m_idx, z_idx, (vstart[s, None] + np.arange(self.dx))[:, None, :]] = self._Ho   # + H x_k
+            H[m_idx, z_idx, (self.mean.size + c[:, None] * do + np.arange(do))[:, None, :]] = (
+                -np.eye(do))                                                           # − H x_{k−1}
+            H_rows.append(H.reshape(-1, D))
+            z_rows.append(odometry.z[rows].ravel())
+            R_blocks.append(odometry.cov[rows])
         if not H_rows:
             return 0.0, 0
         H, z, R = np.concatenate(H_rows), np.concatenate(z_rows), block_diagonal(*R_blocks)
-        post, nis = kf_update_nis(Gaussians(self.mean[None], self.cov[None]), z[None], H, R)
-        self.mean, self.cov = post.mean[0], post.cov[0]
+        mean, cov = self.mean, self.cov
+        if self._clone_ids.size:  # the joint of [θ; c]
+            mean = np.concatenate([mean, self._clone_mean])
+            cov = np.block([[cov, self._clone_cross], [self._clone_cross.T, self._clone_cov]])
+        post, nis = kf_update_nis(Gaussians(mean[None], cov[None]), z[None], H, R)
+        n = self.mean.size                                  # the clones marginalised out
+        self.mean, self.cov = post.mean[0, :n], post.cov[0, :n, :n]
         return float(nis[0]), z.size
 
     def _estimate(self, nis: tuple[float, int]) -> Estimate:

@@ -79,11 +79,11 @@ Which families are on by default: the radars and the AoA, so that the radar and 
 methods find their sensors on a city (`cooploc compare`); no estimator that ran on the
 `sumo-*` presets before reads either, so every one of them gives the same numbers, bit
 for bit. Odometry is off by default: `gnss-kf`, `icp`, `icp-da-lc`, `icp-da-pf`,
-`kf-known-da` and `rsu-bp` (through its own-vehicle `gnss-kf`) fuse odometry wherever a
-scenario has it, so with it on they would change, and they would no longer be bounded
-by `oracle-kf`, the presets' bound, which reads GNSS and V2F only. The factor graphs
-need it: ``--set odometry=true``. Anonymous GNSS replaces the identified rows that the
-GNSS baseline and the V2F methods need, so it is opt-in too.
+`kf-known-da`, `rsu-bp` (through its own-vehicle `gnss-kf`) and `oracle-kf`, the
+presets' bound, fuse odometry wherever a scenario has it, so with it on they would
+change. The factor graphs need it: ``--set odometry=true``. Anonymous GNSS replaces
+the identified rows that the GNSS baseline and the V2F methods need, so it is opt-in
+too.
 
 Randomness: `rng` is split into ten children, in this order: traffic seed, prior,
 GNSS, V2F (the four of the Brambilla recording, unchanged), radar poses, radar noise,
