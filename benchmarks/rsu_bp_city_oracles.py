@@ -14,6 +14,10 @@ costs shows in the vehicle RMSE:
 - ``known-association``: a row is gated only with the track that the first row of its
   true feature started, and it starts a track only if its feature has none yet.
 - ``exact-map+known-association``: both (no births).
+  The exact-map variants run with ``feature_messages="fixes"`` whatever ``--param`` says:
+  the true map replaces the learned one before every step, so how the map is learned
+  does not enter (with ``--param feature_messages=tracks`` the others learn it from the
+  vehicles' track messages, `rsu_bp.map_messages`).
 - ``+matched-motion`` after any of these: the estimator's vehicle motion model is the
   one SUMO steps by (x_{k+1} = x_k + dt v_{k+1}, v_{k+1} = v_k + w,
   `EulerVelocity`) instead of the scenario's constant velocity; also for

@@ -33,10 +33,21 @@ with V2F rows). One step:
    paper's message carries φ_s, which holds k's own earlier messages and s's earlier
    fixes: sent every step, that information compounds through the loop in time and a
    feature freezes on its first estimate. The fix is new information at every step,
-   so a feature's belief is a consistent fusion of independent fixes.
+   so a feature's belief is a consistent fusion of independent fixes
+   (`feature_messages="fixes"`, the default). With `feature_messages="tracks"` the
+   message is s's GNSS track through the row instead (y = z + H x̂_s, cov W + H P_s Hᵀ;
+   the track holds no feature information and is independent of the other vehicles'),
+   and since one track at two steps holds the same earlier fixes, each vehicle's latest
+   message *replaces* its previous one: a feature's belief is its birth prior times one
+   message per vehicle that has seen it, each read at this step through the feature
+   motion (`rsu_bp.map_messages`). Measured worse on every sumo-* preset (the CV tracks
+   are over-confident against SUMO's motion, and one message per vehicle holds less
+   than all its fixes; docs/rsu_bp.md, "Track messages").
 6. **Messages to the vehicles** (Fröhle (23)): μ_{k,s}(x) = (1 − r⁻ P_D p_{k,s}) +
    r⁻ P_D Σ_m ν_{m→k} N(z_m; H f̃ − H x, W + H P̃ Hᵀ), with (f̃, P̃) the feature's belief
-   without everything s ever sent it (extrinsic, Fröhle (22); `VehicleMessages`). The
+   without everything s ever sent it (extrinsic, Fröhle (22); `VehicleMessages`; with
+   track messages, the sum without s's stored message, exact; a feature that holds no
+   information on its position without it sends s no message). The
    vehicle's belief b_s = φ_s χ_s Π_k μ_{k,s} (26) is not carried into its track:
    next step's messages carry the features' information again (a vehicle without rows
    reports its last belief predicted and updated with GNSS: `RsuBP._step_unknown`).
@@ -51,7 +62,8 @@ with V2F rows). One step:
 The feature ids are the filter's own labels (0, 1, …); rows are scored through
 ``info["v2f_track"]`` (`metrics.track_identities`). Complexity per step: O(P d³) for P
 gated pairs (β in closed form), O(P N_p d²) for the messages to the vehicles' particles
-(`rsu_bp.vehicles`), plus O(S log F) for the KD-tree queries of S vehicles and F features.
+(`rsu_bp.vehicles`), plus O(S log F) for the KD-tree queries of S vehicles and F features;
+with track messages also O(M d³) for the M stored (feature, vehicle) messages.
 """
 
 from __future__ import annotations
