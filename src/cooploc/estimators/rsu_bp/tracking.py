@@ -40,9 +40,10 @@ with V2F rows). One step:
    and since one track at two steps holds the same earlier fixes, each vehicle's latest
    message *replaces* its previous one: a feature's belief is its birth prior times one
    message per vehicle that has seen it, each read at this step through the feature
-   motion (`rsu_bp.map_messages`). Measured worse on every sumo-* preset (the CV tracks
-   are over-confident against SUMO's motion, and one message per vehicle holds less
-   than all its fixes; docs/rsu_bp.md, "Track messages").
+   motion (`rsu_bp.map_messages`). Measured worse on every sumo-* preset: the CV tracks
+   are over-confident against SUMO's motion, and where they are consistent the better
+   map's errors are correlated between the features one vehicle saw, which the product
+   over features treats as independent (docs/rsu_bp.md, "Track messages").
 6. **Messages to the vehicles** (Fröhle (23)): μ_{k,s}(x) = (1 − r⁻ P_D p_{k,s}) +
    r⁻ P_D Σ_m ν_{m→k} N(z_m; H f̃ − H x, W + H P̃ Hᵀ), with (f̃, P̃) the feature's belief
    without everything s ever sent it (extrinsic, Fröhle (22); `VehicleMessages`; with
