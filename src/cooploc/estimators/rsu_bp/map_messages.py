@@ -30,11 +30,16 @@ The feature's belief is its birth prior times these messages,
 
 and the extrinsic belief for vehicle s (Fröhle (22)) is the same sum without s's term —
 exact, no shrinking. Approximations: (i) the process noise between two messages' steps
-is counted once per message, as if independent (exact for a static feature, which the
-sumo poles are; over-confident for a walking pedestrian seen by several vehicles at
-about the same time); (ii) a state-dependent Q (turned with the heading) is replaced by
-its average over four headings; (iii) the birth prior Λ_b (velocity only) is read at
-the current step.
+is counted once per message, as if independent (exact with Q = 0; over-confident for a
+walking pedestrian seen by several vehicles at about the same time; the sumo scenes give
+every feature, poles too, the pedestrians' Q, so a pole's old messages are discounted
+although it stands still); (ii) a state-dependent Q (turned with the heading) is
+replaced by its average over four headings; (iii) the birth prior Λ_b (velocity only) is
+read at the current step; (iv) a vehicle's earlier rows of k leave with its earlier
+message, their V2F noise (decimetres) being far below the track's (metres), and the
+track errors of one vehicle in the several features it saw at one step are correlated,
+which the product over features in the vehicles' beliefs ignores (measured in
+docs/rsu_bp.md, "Track messages": worse than the fixes on every sumo-* preset).
 
 Messages whose information is below `NEGLIGIBLE` of their feature's are dropped (an old
 message of a moving feature). Cost per step: O(M dz³) for M stored messages, vectorised.
