@@ -1,6 +1,6 @@
 """`rsu-bp`'s track messages (`feature_messages="tracks"`, `rsu_bp.map_messages`).
 
-- One feature, two vehicles, four steps: the feature's information is the prior plus
+- One feature, two vehicles, five steps: the feature's information is the prior plus
   each vehicle's *latest* message, each predicted to now by the Kalman prediction of its
   Gaussian (computed here independently, forward, with `kf_predict`); the accumulated
   sum of all messages (what the fixes do) is a different number, so the test fails if a
