@@ -6,9 +6,10 @@
   sum of all messages (what the fixes do) is a different number, so the test fails if a
   new message is added instead of replacing the vehicle's previous one.
 - A message read at its own step is Hᵀ J H, Hᵀ j; an old one says less about the position.
-- On `brambilla-crossroad` (no feature prior: vehicles entering and leaving, empty
-  frames) the contract suite passes with track messages, and the tracker keeps one
-  message per (feature, vehicle) with the features' beliefs finite.
+- On `brambilla-crossroad` (no feature prior) the contract suite passes with track
+  messages (empty frames, vehicles entering and leaving), and with vehicles made to
+  enter, leave and come back (`testing.with_traffic`) the tracker keeps one message per
+  (feature, vehicle), drops them with their features, and every belief stays finite.
 """
 
 from __future__ import annotations
