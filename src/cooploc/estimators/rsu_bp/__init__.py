@@ -101,6 +101,11 @@ class RsuBPParams(Params):
     prune_threshold : potential features with existence below this are dropped (Meyer:
         10⁻³); rows start a feature only with at least this existence.
     existence_threshold : features with existence at least this are reported (0.5).
+    feature_messages : what a vehicle's message to a potential feature carries (`rsu_bp.tracking`
+        step 5): "fixes" — its GNSS fix of the step through the rows, every step's added;
+        "tracks" — its GNSS track through the rows, each vehicle's latest message
+        replacing its previous one (`rsu_bp.map_messages`; measured worse on the sumo-*
+        presets, docs/rsu_bp.md).
     """
 
     n_particles: int = param(600, ge=2)
@@ -119,6 +124,7 @@ class RsuBPParams(Params):
     gate_probability: float = param(0.9999, gt=0, lt=1)
     prune_threshold: float = param(1e-3, gt=0, lt=1)
     existence_threshold: float = param(0.5, gt=0, le=1)
+    feature_messages: str = param("fixes", choices=("fixes", "tracks"))
 
     def validate(self) -> None:
         # no finiteness asked: inf means "always store the kernel"

@@ -33,10 +33,22 @@ with V2F rows). One step:
    paper's message carries φ_s, which holds k's own earlier messages and s's earlier
    fixes: sent every step, that information compounds through the loop in time and a
    feature freezes on its first estimate. The fix is new information at every step,
-   so a feature's belief is a consistent fusion of independent fixes.
+   so a feature's belief is a consistent fusion of independent fixes
+   (`feature_messages="fixes"`, the default). With `feature_messages="tracks"` the
+   message is s's GNSS track through the row instead (y = z + H x̂_s, cov W + H P_s Hᵀ;
+   the track holds no feature information and is independent of the other vehicles'),
+   and since one track at two steps holds the same earlier fixes, each vehicle's latest
+   message *replaces* its previous one: a feature's belief is its birth prior times one
+   message per vehicle that has seen it, each read at this step through the feature
+   motion (`rsu_bp.map_messages`). Measured worse on every sumo-* preset: the CV tracks
+   are over-confident against SUMO's motion, and where they are consistent the better
+   map's errors are correlated between the features one vehicle saw, which the product
+   over features treats as independent (docs/rsu_bp.md, "Track messages").
 6. **Messages to the vehicles** (Fröhle (23)): μ_{k,s}(x) = (1 − r⁻ P_D p_{k,s}) +
    r⁻ P_D Σ_m ν_{m→k} N(z_m; H f̃ − H x, W + H P̃ Hᵀ), with (f̃, P̃) the feature's belief
-   without everything s ever sent it (extrinsic, Fröhle (22); `VehicleMessages`). The
+   without everything s ever sent it (extrinsic, Fröhle (22); `VehicleMessages`; with
+   track messages, the sum without s's stored message, exact; a feature that holds no
+   information on its position without it sends s no message). The
    vehicle's belief b_s = φ_s χ_s Π_k μ_{k,s} (26) is not carried into its track:
    next step's messages carry the features' information again (a vehicle without rows
    reports its last belief predicted and updated with GNSS: `RsuBP._step_unknown`).
@@ -51,7 +63,8 @@ with V2F rows). One step:
 The feature ids are the filter's own labels (0, 1, …); rows are scored through
 ``info["v2f_track"]`` (`metrics.track_identities`). Complexity per step: O(P d³) for P
 gated pairs (β in closed form), O(P N_p d²) for the messages to the vehicles' particles
-(`rsu_bp.vehicles`), plus O(S log F) for the KD-tree queries of S vehicles and F features.
+(`rsu_bp.vehicles`), plus O(S log F) for the KD-tree queries of S vehicles and F features;
+with track messages also O(M d³) for the M stored (feature, vehicle) messages.
 """
 
 from __future__ import annotations
@@ -63,6 +76,7 @@ import numpy as np
 
 from cooploc.association import bp_association, gated_pairs, padded_groups, pair_components
 from cooploc.estimators.rsu_bp import existence as ex
+from cooploc.estimators.rsu_bp.map_messages import TrackMessages
 from cooploc.estimators.rsu_bp.vehicles import (
     VehicleMessages,
     group_log_sum,
@@ -72,6 +86,10 @@ from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize
 from cooploc.types import Batch, FloatArray, IntArray, Setup, StateSet, lookup_ids
 
 __all__ = ["FeatureTracker"]
+
+#: a (vehicle, feature) pair whose rows' weights q sum to less than this sends no new
+#: track message at the step (its previous one stays): a numerical floor, J = Σ q C⁻¹ ≈ 0
+MIN_ROW_WEIGHT = 1e-9
 
 @dataclass
 class _Features:
@@ -125,18 +143,39 @@ class FeatureTracker:
         self.next_id = 0
         # (vehicle id, feature id) → the information (Λ, η) the vehicle has sent the feature
         self.sent: dict[tuple[int, int], tuple[FloatArray, FloatArray]] = {}
+        self.now = 0                                    # steps since the first frame
+        # feature_messages="tracks": each vehicle's latest track-based message per feature
+        self.store: TrackMessages | None = None
+        if params.feature_messages == "tracks":
+            self.store = TrackMessages(self.Hf, self.F, self._step_noise())
+
+    def _step_noise(self) -> FloatArray:
+        """Q (df, df) of one step of the feature motion for the track messages' ages: the
+        model's own, or for a Q turned with the heading its average over four headings."""
+        motion, dt = self.setup.feature_motion, self.setup.dt
+        if not motion.state_dependent_noise:
+            return np.asarray(motion.noise_covariance(dt)).reshape(self.df, self.df)
+        states = np.zeros((4, self.df))
+        velocity = self.setup.feature_layout.velocity or self.setup.feature_layout.position
+        angles = np.pi / 4 * np.arange(4)
+        states[:, velocity[0]], states[:, velocity[1]] = np.cos(angles), np.sin(angles)
+        return np.asarray(motion.noise_covariance(dt, states)).mean(axis=0)
 
     # ------------------------------------------------------------------ step
 
     def predict(self, steps: int | None) -> None:
+        self.now += steps or 0
         f = self.features
         if not f.ids.size or not steps:
             return
-        motion, dt = self.setup.feature_motion, self.setup.dt
-        belief = Gaussians(f.mean, f.cov)
-        for _ in range(steps):
-            belief = kf_predict(belief, self.F, motion.noise_covariance(dt, belief.mean))
-        f.mean, f.cov = belief.mean, belief.cov
+        if self.store is not None:
+            self._recombine(f.ids, prune=True)
+        else:
+            motion, dt = self.setup.feature_motion, self.setup.dt
+            belief = Gaussians(f.mean, f.cov)
+            for _ in range(steps):
+                belief = kf_predict(belief, self.F, motion.noise_covariance(dt, belief.mean))
+            f.mean, f.cov = belief.mean, belief.cov
         f.existence = f.existence * self.params.survival_probability**steps
 
     def update(self, vehicle_ids: IntArray, v_mean: FloatArray, v_cov: FloatArray, v2f: Batch,
@@ -204,40 +243,27 @@ class FeatureTracker:
                   ex.log_existence_likelihood(np.full(miss_k.size, -np.inf), p_d, miss_p))
         # 5. feature update, information form: per row, weight P(row | k exists, s)
         q = np.exp(np.log(p_d) + log_nu + log_beta - log_L[pair])
-        y, C, usable = self._sources(v2f, r_idx, s_row, v_mean, v_cov, gnss)
-        q = np.where(usable, q, 0.0)
-        Cinv = np.linalg.inv(C)
-        info_m = np.einsum("ji,pjk,kl->pil", Hf, Cinv, Hf) * q[:, None, None]       # Hᵀ C⁻¹ H q
-        info_v = np.einsum("ji,pjk,pk->pi", Hf, Cinv, y) * q[:, None]
-        own_m = np.zeros((n_sk, self.df, self.df))
-        own_v = np.zeros((n_sk, self.df))
-        np.add.at(own_m, pair, info_m)
-        np.add.at(own_v, pair, info_v)
-        touched = np.unique(sk_k)
-        lam_prior = np.linalg.inv(f.cov[touched])
-        eta_prior = np.einsum("fij,fj->fi", lam_prior, f.mean[touched])
-        where = np.searchsorted(touched, sk_k)
-        lam = lam_prior.copy()
-        eta = eta_prior.copy()
-        np.add.at(lam, where, own_m)
-        np.add.at(eta, where, own_v)
-        # 6. messages to vehicles from the extrinsic beliefs (without what s ever sent k)
-        keys = list(zip(vehicle_ids[sk_s].tolist(), f.ids[sk_k].tolist(), strict=True))
-        zero = (np.zeros((self.df, self.df)), np.zeros(self.df))
-        past = [self.sent.get(key, zero) for key in keys]
-        sent_m = own_m + np.array([m for m, _ in past]).reshape(own_m.shape)
-        sent_v = own_v + np.array([v for _, v in past]).reshape(own_v.shape)
-        self.sent.update(zip(keys, zip(sent_m, sent_v, strict=True), strict=True))
-        extrinsic = self._without(lam[where], eta[where], sent_m, sent_v)
         with np.errstate(divide="ignore"):
             log_coef = np.log(r_minus[k_idx] * p_d) + log_nu
             log_miss = np.log1p(-r_minus[sk_k] * p_d * p_in_sk)
+        if self.store is None:
+            lam, eta, touched, ext_mean, ext_cov = self._fix_messages(
+                v2f, r_idx, s_row, v_mean, v_cov, gnss, q, pair, n_sk, sk_s, sk_k, vehicle_ids)
+            proper = np.ones(n_sk, dtype=bool)
+        else:
+            ext_mean, ext_cov, proper = self._track_messages(
+                v2f, r_idx, s_row, v_mean, v_cov, q, pair, n_sk, sk_s, sk_k, vehicle_ids)
+        # 6. messages to vehicles from the extrinsic beliefs (without what s sent k); a
+        # feature that knows nothing of its position without s sends s no message
+        sent = proper[pair]
         messages = VehicleMessages(
-            S, Hx, s_row[r_idx], pair, sk_s, v2f.z[r_idx] - extrinsic.mean[pair] @ Hf.T,
-            v2f.cov[r_idx] + Hf @ extrinsic.cov[pair] @ Hf.T, log_coef, log_miss)
-        # posterior features; 7. existence
-        post = from_information(lam, eta)
-        f.mean[touched], f.cov[touched] = post.mean, post.cov
+            S, Hx, s_row[r_idx][sent], pair[sent], sk_s,
+            v2f.z[r_idx][sent] - ext_mean[pair][sent] @ Hf.T,
+            v2f.cov[r_idx][sent] + Hf @ ext_cov[pair][sent] @ Hf.T, log_coef[sent], log_miss)
+        # posterior features (with the fixes; the tracks' were recombined above); 7. existence
+        if self.store is None:
+            post = from_information(lam, eta)
+            f.mean[touched], f.cov[touched] = post.mean, post.cov
         f.existence = ex.legacy_existence(r_minus, log_L_feature)
         # the decided track of every row: its MAP legacy feature, else the feature it starts
         track = np.full(R, -1, dtype=np.int64)
@@ -249,7 +275,8 @@ class FeatureTracker:
         slot_feature[sk_s, k_slot] = f.ids[sk_k]
         track[legacy_row] = slot_feature[s_row[legacy_row], best[legacy_row]]
         r_new = ex.new_existence(not_legacy, log_birth, log_kappa)
-        n_born = self._births(v2f, s_row, vehicle_ids, messages.gaussian(v_mean, v_cov), r_new, track, gnss)
+        n_born = self._births(v2f, s_row, vehicle_ids, messages.gaussian(v_mean, v_cov), r_new, track, gnss,
+                              own=Gaussians(v_mean, v_cov))
         self._prune()
         info = {"potential_features": int(f.ids.size), "features_born": n_born,
                 "gated_pairs": int(r_idx.size), "da_iterations": marg.iterations}
@@ -358,6 +385,101 @@ class FeatureTracker:
             C[use] = v2f.cov[rows[use]] + gnss.cov[g][:, m][:, :, m]
         return y, C, use
 
+    def _fix_messages(self, v2f: Batch, r_idx: IntArray, s_row: IntArray, v_mean: FloatArray,
+                      v_cov: FloatArray, gnss: Batch | None, q: FloatArray, pair: IntArray, n_sk: int,
+                      sk_s: IntArray, sk_k: IntArray, vehicle_ids: IntArray
+                      ) -> tuple[FloatArray, FloatArray, IntArray, FloatArray, FloatArray]:
+        """Step 5 with the fixes (`feature_messages="fixes"`): the posterior information
+        (Λ, η) of the features `touched`, and the extrinsic beliefs per (s, k) pair."""
+        f, Hf = self.features, self.Hf
+        y, C, usable = self._sources(v2f, r_idx, s_row, v_mean, v_cov, gnss)
+        q = np.where(usable, q, 0.0)
+        Cinv = np.linalg.inv(C)
+        info_m = np.einsum("ji,pjk,kl->pil", Hf, Cinv, Hf) * q[:, None, None]       # Hᵀ C⁻¹ H q
+        info_v = np.einsum("ji,pjk,pk->pi", Hf, Cinv, y) * q[:, None]
+        own_m = np.zeros((n_sk, self.df, self.df))
+        own_v = np.zeros((n_sk, self.df))
+        np.add.at(own_m, pair, info_m)
+        np.add.at(own_v, pair, info_v)
+        touched = np.unique(sk_k)
+        lam_prior = np.linalg.inv(f.cov[touched])
+        eta_prior = np.einsum("fij,fj->fi", lam_prior, f.mean[touched])
+        where = np.searchsorted(touched, sk_k)
+        lam = lam_prior.copy()
+        eta = eta_prior.copy()
+        np.add.at(lam, where, own_m)
+        np.add.at(eta, where, own_v)
+        # the extrinsic beliefs: without what s ever sent k
+        keys = list(zip(vehicle_ids[sk_s].tolist(), f.ids[sk_k].tolist(), strict=True))
+        zero = (np.zeros((self.df, self.df)), np.zeros(self.df))
+        past = [self.sent.get(key, zero) for key in keys]
+        sent_m = own_m + np.array([m for m, _ in past]).reshape(own_m.shape)
+        sent_v = own_v + np.array([v for _, v in past]).reshape(own_v.shape)
+        self.sent.update(zip(keys, zip(sent_m, sent_v, strict=True), strict=True))
+        extrinsic = self._without(lam[where], eta[where], sent_m, sent_v)
+        return lam, eta, touched, extrinsic.mean, extrinsic.cov
+
+    def _track_messages(self, v2f: Batch, r_idx: IntArray, s_row: IntArray, v_mean: FloatArray,
+                        v_cov: FloatArray, q: FloatArray, pair: IntArray, n_sk: int, sk_s: IntArray,
+                        sk_k: IntArray, vehicle_ids: IntArray) -> tuple[FloatArray, FloatArray, np.ndarray]:
+        """Step 5 with the tracks (`feature_messages="tracks"`, `rsu_bp.map_messages`).
+
+        Vehicle s's message to k, y = z + H x̂_s with covariance C = W + H P_s Hᵀ from its
+        GNSS track, J = Σ_m q_m C_m⁻¹, j = Σ_m q_m C_m⁻¹ y_m over its rows of k, replaces
+        s's previous message to k, and the touched features are recombined from their
+        messages.
+
+        Returns the extrinsic beliefs per (s, k) pair after the update (the sum without
+        s's message: exact) and which are proper (hold information on every component).
+        """
+        f, store = self.features, self.store
+        touched = np.unique(sk_k)
+        where = np.searchsorted(touched, sk_k)
+        y, C, _ = self._sources(v2f, r_idx, s_row, v_mean, v_cov, None)
+        Cinv = np.linalg.inv(C)
+        J = np.zeros((n_sk, *Cinv.shape[1:]))
+        j = np.zeros((n_sk, y.shape[1]))
+        np.add.at(J, pair, Cinv * q[:, None, None])
+        np.add.at(j, pair, np.einsum("pij,pj->pi", Cinv, y) * q[:, None])
+        # a pair whose rows all have (numerically) no weight sends nothing new
+        new = np.bincount(pair, weights=q, minlength=n_sk) > MIN_ROW_WEIGHT
+        store.replace(f.ids[sk_k[new]], vehicle_ids[sk_s[new]], self.now, J[new], j[new])
+        lam, eta = self._recombine(f.ids[touched], prune=False)
+        return self._extrinsic(lam, eta, where, sk_s, sk_k, vehicle_ids)
+
+    def _extrinsic(self, lam: FloatArray, eta: FloatArray, where: IntArray, sk_s: IntArray,
+                   sk_k: IntArray, vehicle_ids: IntArray) -> tuple[FloatArray, FloatArray, np.ndarray]:
+        """Per (s, k) pair, k's belief (information `lam`, `eta` at `where`) without s's
+        stored message, exactly; and which of these hold information on every component
+        (the others get placeholder moments and send no message)."""
+        f, store = self.features, self.store
+        ext_m, ext_v = lam[where].copy(), eta[where].copy()
+        mine = store.find(f.ids[sk_k], vehicle_ids[sk_s])
+        has = mine >= 0
+        own_m, own_v = store.read(self.now, mine[has])
+        ext_m[has] -= own_m
+        ext_v[has] -= own_v
+        ext_m = symmetrize(ext_m)
+        scale = np.trace(lam[where], axis1=1, axis2=2)
+        proper = np.linalg.eigvalsh(ext_m)[:, 0] > 1e-9 * scale
+        mean, cov = np.zeros((where.size, self.df)), np.broadcast_to(np.eye(self.df), ext_m.shape).copy()
+        if proper.any():
+            ext = from_information(ext_m[proper], ext_v[proper])
+            mean[proper], cov[proper] = ext.mean, ext.cov
+        return mean, cov, proper
+
+    def _recombine(self, ids: IntArray, prune: bool) -> tuple[FloatArray, FloatArray]:
+        """The beliefs of the features `ids` (sorted) from their stored messages read at
+        this step (`TrackMessages.beliefs`), written into `features`; their (Λ, η)."""
+        f, store = self.features, self.store
+        lam, eta, index, where, lam_m = store.beliefs(self.now, ids, self.birth_info)
+        post = from_information(lam, eta)
+        at = np.searchsorted(f.ids, ids)
+        f.mean[at], f.cov[at] = post.mean, post.cov
+        if prune:
+            store.prune(index, lam_m, np.trace(lam, axis1=1, axis2=2)[where])
+        return lam, eta
+
     def _without(self, lam: FloatArray, eta: FloatArray, sent_m: FloatArray, sent_v: FloatArray
                  ) -> Gaussians:
         """The feature beliefs without the information a vehicle sent them.
@@ -376,8 +498,13 @@ class FeatureTracker:
         return from_information(out_m, out_v)
 
     def _births(self, v2f: Batch, s_row: IntArray, vehicle_ids: IntArray, belief: Gaussians,
-                r_new: FloatArray, track: IntArray, gnss: Batch | None) -> int:
-        """New potential features from rows no legacy feature explains (step 7)."""
+                r_new: FloatArray, track: IntArray, gnss: Batch | None, own: Gaussians | None = None
+                ) -> int:
+        """New potential features from rows no legacy feature explains (step 7).
+
+        Grouped on the vehicles' beliefs `belief`; the state from the fixes (or, with
+        `feature_messages="tracks"`, from the GNSS tracks `own`, stored as each vehicle's
+        first message to the feature)."""
         prm = self.params
         rows = np.flatnonzero((r_new >= prm.prune_threshold) & (track < 0))
         if not rows.size:
@@ -385,7 +512,10 @@ class FeatureTracker:
         s = s_row[rows]
         mean, cov = belief.mean, belief.cov
         Hf = self.Hf
-        y, C, _ = self._sources(v2f, rows, s_row, mean, cov, gnss)
+        if self.store is None:
+            y, C, _ = self._sources(v2f, rows, s_row, mean, cov, gnss)
+        else:
+            y, C, _ = self._sources(v2f, rows, s_row, own.mean, own.cov, None)
         Cinv = np.linalg.inv(C)
         lam = np.einsum("ji,pjk,kl->pil", Hf, Cinv, Hf)
         eta = np.einsum("ji,pjk,pk->pi", Hf, Cinv, y)
@@ -408,8 +538,12 @@ class FeatureTracker:
         f.cov = np.concatenate([f.cov, born.cov])
         f.existence = np.concatenate([f.existence, -np.expm1(log_absent)])
         track[rows] = ids[group]
-        self.sent.update(zip(zip(vehicle_ids[s].tolist(), ids[group].tolist(), strict=True),
-                             zip(lam, eta, strict=True), strict=True))
+        if self.store is None:
+            self.sent.update(zip(zip(vehicle_ids[s].tolist(), ids[group].tolist(), strict=True),
+                                 zip(lam, eta, strict=True), strict=True))
+        else:
+            self.store.replace(ids[group], vehicle_ids[s], self.now, Cinv,
+                               np.einsum("pij,pj->pi", Cinv, y))
         return n
 
     def _same_feature(self, y: FloatArray, C: FloatArray, s: IntArray) -> IntArray:
@@ -422,5 +556,7 @@ class FeatureTracker:
         keep = f.existence >= self.params.prune_threshold
         if not keep.all():
             gone = set(f.ids[~keep].tolist())
+            if self.store is not None:
+                self.store.drop_features(f.ids[~keep])
             f.keep(keep)
             self.sent = {p: v for p, v in self.sent.items() if p[1] not in gone}
