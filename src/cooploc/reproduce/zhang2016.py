@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from cooploc.estimators.sme.pf import SmePFParams
 from cooploc.experiment import ExperimentConfig, ExperimentResult, run_recording
 from cooploc.metrics import VEHICLE, total_rmse
 from cooploc.plots import figure_panels, format_number, pyplot, save_figure, trajectory_panel
@@ -505,7 +506,8 @@ def _gap_lines(data: dict[str, Any]) -> list[str]:
     few, pf = _runs(data, SCENARIOS[-1], PARTICLES_LABEL), _runs(data, SCENARIOS[-1], "sme-pf")
     if few.size and pf.size:
         converged = checks.get(f"sme-pf's particle approximation has converged ({_short(SCENARIOS[-1])})")
-        change = f"{VARIANT_PARTICLES} → 8000 particles change {_short(SCENARIOS[-1])}'s total error by " \
+        change = f"{VARIANT_PARTICLES} → {SmePFParams().n_particles} particles (the default) change " \
+                 f"{_short(SCENARIOS[-1])}'s total error by " \
                  f"{_difference(pf, few)}"
         text += (f" {change}: the particle count has converged, so the rest of the gap is SME's pseudo-"
                  "likelihood (the Gaussian shape of the sums' noise where vehicles are close), not its "
