@@ -40,3 +40,6 @@ def test_reproduce_quick(tmp_path):
         totals = data[scenario]["per_run_total"]
         assert set(totals) >= {"sme-pf", "kf-known-da", "gm-phd", "sme-ukf"}
         assert all(len(v) == 2 and min(v) > 0 for v in totals.values() if v)   # variants: CV only
+        assert len(totals["MHT, anonymous rows + T (analysis)"]) == 2   # what SME's information allows
+        assert set(data[scenario]["per_run_close"]) >= {"sme-pf", "kf-known-da"}
+    assert "## Where sme-pf loses against the Kalman filter" in report
