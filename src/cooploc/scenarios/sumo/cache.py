@@ -46,7 +46,7 @@ from cooploc.scenarios.sumo.simulation import (
 __all__ = ["CACHE_FORMAT", "CACHE_LIMIT_VARIABLE", "DEFAULT_CACHE_LIMIT", "cache_dir", "cache_key",
            "cache_limit", "cache_path", "evict", "traffic"]
 
-CACHE_FORMAT = 4  # bump when the cached arrays change meaning (4: vehicle heading, junctions)
+CACHE_FORMAT = 5  # bump when the cached arrays change meaning (4: vehicle heading, junctions; 5: walking areas)
 CACHE_LIMIT_VARIABLE = "COOPLOC_SUMO_CACHE_LIMIT"
 DEFAULT_CACHE_LIMIT = 2 * 1024**3  # bytes
 _UNITS = {"": 1, "K": 1024, "M": 1024**2, "G": 1024**3, "T": 1024**4}

@@ -202,10 +202,17 @@ def _run(args: list[str], what: str, cwd: Path, *, check: bool = True,
     return done.returncode == 0
 
 
-#: netgenerate options of the grid (`cache_key` hashes them). Crossings and walking areas:
-#: without them SUMO moves a pedestrian across a junction in one step (a jump of about
-#: the junction's width), which no motion model given to the estimators allows —
+#: netconvert options that give a network crossings and walking areas. Without walking
+#: areas SUMO's pedestrian router lets a person "jump" between any two pedestrian edges
+#: of a junction, and the simulation moves it there in one step (SUMO's documentation,
+#: Simulation/Pedestrians): a jump of about the junction's width, up to 35 m in one
+#: 0.75 s step on Braunschweig, which no motion model given to the estimators allows —
 #: `oracle-kf`, which keeps the pedestrian's track, then drags the vehicles that see it.
+#: The grid is generated with them (`GRID_OPTIONS`); a real network that has none
+#: (Braunschweig's export, an OpenStreetMap import) gets them when it is cut.
+PEDESTRIAN_OPTIONS = ("--sidewalks.guess", "true", "--crossings.guess", "true", "--walkingareas", "true")
+#: netgenerate options of the grid (`cache_key` hashes them), with crossings and walking
+#: areas (`PEDESTRIAN_OPTIONS`).
 GRID_OPTIONS = ("--default.lanenumber", "1", "--sidewalks.guess", "true", "--crossings.guess", "true",
                 "--walkingareas", "true", "--default-junction-type", "traffic_light", "--seed", "0",
                 "--no-warnings", "true")
@@ -239,8 +246,10 @@ def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Pat
         h = params.area_half_width
         box = f"{centre[0] - h},{centre[1] - h},{centre[0] + h},{centre[1] + h}"
         what = "netconvert (study area, traffic lights)"
+        # a network without walking areas gets them, with crossings (`PEDESTRIAN_OPTIONS`)
+        walking = () if net.hasWalkingArea else PEDESTRIAN_OPTIONS
         _run([_binary("netconvert"), "-s", str(source), "--keep-edges.in-boundary", box,
-              "--keep-edges.components", "1", "--tls.guess", "true", "--no-warnings", "true",
+              "--keep-edges.components", "1", "--tls.guess", "true", *walking, "--no-warnings", "true",
               "-o", str(tlr)], f"network={params.network!r}: {what}" if params.own_network else what,
              folder, error=InvalidInputError if params.own_network else CooplocError)
     return tlr, centre
