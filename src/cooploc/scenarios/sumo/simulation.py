@@ -58,6 +58,7 @@ run costs on real networks is measured by ``benchmarks/sumo_traffic.py``.
 from __future__ import annotations
 
 import contextlib
+import gzip
 import io
 import os
 import subprocess
@@ -247,7 +248,7 @@ def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Pat
         box = f"{centre[0] - h},{centre[1] - h},{centre[0] + h},{centre[1] + h}"
         what = "netconvert (study area, traffic lights)"
         # a network without walking areas gets them, with crossings (`PEDESTRIAN_OPTIONS`)
-        walking = () if net.hasWalkingArea else PEDESTRIAN_OPTIONS
+        walking = () if _has_walking_areas(source) else PEDESTRIAN_OPTIONS
         _run([_binary("netconvert"), "-s", str(source), "--keep-edges.in-boundary", box,
               "--keep-edges.components", "1", "--tls.guess", "true", *walking, "--no-warnings", "true",
               "-o", str(tlr)], f"network={params.network!r}: {what}" if params.own_network else what,
@@ -263,6 +264,14 @@ def _from_osm(params: SumoParams, source: Path, folder: Path) -> Path:
           "--sidewalks.guess", "true", "--no-warnings", "true", "-o", str(out)],
          f"network={params.network!r}: netconvert (OpenStreetMap import)", folder, error=InvalidInputError)
     return out
+
+
+def _has_walking_areas(path: Path) -> bool:
+    """Whether the SUMO network file (plain or gzip) has walking areas (sumolib's reader
+    skips them with the other internal edges, so the file's text is searched)."""
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    with opener(path, "rt", encoding="utf-8", errors="replace") as text:
+        return any('function="walkingarea"' in line for line in text)
 
 
 def _read_network(params: SumoParams, path: Path, sumolib: Any) -> Any:
