@@ -104,8 +104,7 @@ def _file_digest(path: Path) -> str:
 
 def cache_key(params: SumoParams, seed: int) -> str:
     """SHA-256 over the network file and `PEDESTRIAN_OPTIONS` (the grid: its netgenerate
-    options), the SUMO version,
-    the seed and `TRAFFIC_KEYS`."""
+    options), the SUMO version, the seed and `TRAFFIC_KEYS`."""
     sumo, _ = _require_sumo()
     source = (" ".join((_file_digest(network_file(params.network)), *PEDESTRIAN_OPTIONS))
               if params.network != GRID else " ".join(("netgenerate", *GRID_OPTIONS)))
