@@ -37,6 +37,7 @@ from cooploc.errors import ConfigError
 from cooploc.scenarios.sumo.params import GRID, TRAFFIC_KEYS, SumoParams
 from cooploc.scenarios.sumo.simulation import (
     GRID_OPTIONS,
+    PEDESTRIAN_OPTIONS,
     Traffic,
     _require_sumo,
     network_file,
@@ -46,7 +47,9 @@ from cooploc.scenarios.sumo.simulation import (
 __all__ = ["CACHE_FORMAT", "CACHE_LIMIT_VARIABLE", "DEFAULT_CACHE_LIMIT", "cache_dir", "cache_key",
            "cache_limit", "cache_path", "evict", "traffic"]
 
-CACHE_FORMAT = 4  # bump when the cached arrays change meaning (4: vehicle heading, junctions)
+# bump when the cached arrays change meaning (4: vehicle heading, junctions; 5: walking areas
+# and crossings on real networks without them, so that pedestrians no longer jump)
+CACHE_FORMAT = 5
 CACHE_LIMIT_VARIABLE = "COOPLOC_SUMO_CACHE_LIMIT"
 DEFAULT_CACHE_LIMIT = 2 * 1024**3  # bytes
 _UNITS = {"": 1, "K": 1024, "M": 1024**2, "G": 1024**3, "T": 1024**4}
@@ -100,11 +103,11 @@ def _file_digest(path: Path) -> str:
 
 
 def cache_key(params: SumoParams, seed: int) -> str:
-    """SHA-256 over the network file (the grid: its netgenerate options), the SUMO version,
-    the seed and `TRAFFIC_KEYS`."""
+    """SHA-256 over the network file and `PEDESTRIAN_OPTIONS` (the grid: its netgenerate
+    options), the SUMO version, the seed and `TRAFFIC_KEYS`."""
     sumo, _ = _require_sumo()
-    source = (_file_digest(network_file(params.network)) if params.network != GRID
-              else " ".join(("netgenerate", *GRID_OPTIONS)))
+    source = (" ".join((_file_digest(network_file(params.network)), *PEDESTRIAN_OPTIONS))
+              if params.network != GRID else " ".join(("netgenerate", *GRID_OPTIONS)))
     payload = {"format": CACHE_FORMAT, "sumo": sumo.__version__, "network_file": source,
                "seed": int(seed), **{k: getattr(params, k) for k in TRAFFIC_KEYS}}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]

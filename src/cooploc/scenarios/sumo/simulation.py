@@ -23,6 +23,14 @@ Choices the paper leaves open
   around the median of its traffic lights (the dense core; the centre of its bounding
   box if it has none); the test network is a netgenerate grid (`GRID_OPTIONS`: with
   crossings and walking areas, so that pedestrians walk across junctions).
+- Pedestrians: a network without walking areas (Braunschweig's export, an
+  OpenStreetMap import) gets sidewalks, crossings and walking areas guessed by
+  netconvert when it is cut (`PEDESTRIAN_OPTIONS`). Without them SUMO lets a person
+  "jump" between any two pedestrian edges of a junction, and moves it there in one
+  step: 6–34 m in 0.75 s on Braunschweig, a discontinuity that the features' CV model
+  cannot explain (`oracle-kf`'s NIS per degree of freedom was 9.3 there, 88 % of it
+  on the 7 steps of 80 with a jump). A network that has walking areas (Berlin) is
+  cut as it is.
 - Demand: the calibrated origin–destination demand is not available. randomTrips
   generates one vehicle trip every `vehicle_period` s with origins and destinations
   favouring the fringe by `fringe_factor` (most vehicles cross the area as through
@@ -58,6 +66,7 @@ run costs on real networks is measured by ``benchmarks/sumo_traffic.py``.
 from __future__ import annotations
 
 import contextlib
+import gzip
 import io
 import os
 import subprocess
@@ -202,10 +211,18 @@ def _run(args: list[str], what: str, cwd: Path, *, check: bool = True,
     return done.returncode == 0
 
 
-#: netgenerate options of the grid (`cache_key` hashes them). Crossings and walking areas:
-#: without them SUMO moves a pedestrian across a junction in one step (a jump of about
-#: the junction's width), which no motion model given to the estimators allows —
+#: netconvert options that give a network crossings and walking areas. Without walking
+#: areas SUMO's pedestrian router lets a person "jump" between any two pedestrian edges
+#: of a junction, and the simulation moves it there in one step (SUMO's documentation,
+#: Simulation/Pedestrians): a jump of about the junction's width, up to 35 m in one
+#: 0.75 s step on Braunschweig, which no motion model given to the estimators allows —
 #: `oracle-kf`, which keeps the pedestrian's track, then drags the vehicles that see it.
+#: The grid is generated with them (`GRID_OPTIONS`); a real network that has none
+#: (Braunschweig's export, an OpenStreetMap import) gets them when it is cut (`cache_key`
+#: hashes them).
+PEDESTRIAN_OPTIONS = ("--sidewalks.guess", "true", "--crossings.guess", "true", "--walkingareas", "true")
+#: netgenerate options of the grid (`cache_key` hashes them), with crossings and walking
+#: areas (`PEDESTRIAN_OPTIONS`).
 GRID_OPTIONS = ("--default.lanenumber", "1", "--sidewalks.guess", "true", "--crossings.guess", "true",
                 "--walkingareas", "true", "--default-junction-type", "traffic_light", "--seed", "0",
                 "--no-warnings", "true")
@@ -239,8 +256,10 @@ def _build_networks(params: SumoParams, folder: Path, sumolib: Any) -> tuple[Pat
         h = params.area_half_width
         box = f"{centre[0] - h},{centre[1] - h},{centre[0] + h},{centre[1] + h}"
         what = "netconvert (study area, traffic lights)"
+        # a network without walking areas gets them, with crossings (`PEDESTRIAN_OPTIONS`)
+        walking = () if _has_walking_areas(source) else PEDESTRIAN_OPTIONS
         _run([_binary("netconvert"), "-s", str(source), "--keep-edges.in-boundary", box,
-              "--keep-edges.components", "1", "--tls.guess", "true", "--no-warnings", "true",
+              "--keep-edges.components", "1", "--tls.guess", "true", *walking, "--no-warnings", "true",
               "-o", str(tlr)], f"network={params.network!r}: {what}" if params.own_network else what,
              folder, error=InvalidInputError if params.own_network else CooplocError)
     return tlr, centre
@@ -254,6 +273,14 @@ def _from_osm(params: SumoParams, source: Path, folder: Path) -> Path:
           "--sidewalks.guess", "true", "--no-warnings", "true", "-o", str(out)],
          f"network={params.network!r}: netconvert (OpenStreetMap import)", folder, error=InvalidInputError)
     return out
+
+
+def _has_walking_areas(path: Path) -> bool:
+    """Whether the SUMO network file (plain or gzip) has walking areas (sumolib's reader
+    skips them with the other internal edges, so the file's text is searched)."""
+    opener = gzip.open if path.name.lower().endswith(".gz") else open
+    with opener(path, "rt", encoding="utf-8", errors="replace") as text:
+        return any('function="walkingarea"' in line for line in text)
 
 
 def _read_network(params: SumoParams, path: Path, sumolib: Any) -> Any:
