@@ -392,3 +392,82 @@ def test_rows_without_the_position_are_refused_by_name(short_cv: Recording) -> N
     setup = dataclasses.replace(short_cv.setup, sensors={**short_cv.setup.sensors, "gnss": velocity_only})
     with pytest.raises(ConfigError, match=r"sme-ukf needs GNSS rows that hold the position \(0, 1\)"):
         make_estimator("sme-ukf", setup, SmeUKFParams(), np.random.default_rng(0))
+
+
+# ----------------------------------------------------------------------------
+# the Rao–Blackwellised (marginalized) particle filter
+# ----------------------------------------------------------------------------
+
+
+def test_linear_substate_is_the_exact_conditional_of_the_positions(rng: np.random.Generator) -> None:
+    # oracle: the joint Gaussian of x_0..x_k under x_k = A x_{k−1} + w_k, conditioned by
+    # brute force on every position p_0..p_k; the recursion of `marginalized` must give
+    # the same mean and covariance of v_k (Schön et al. 2005: the motion of the sampled
+    # substate as a measurement of the linear one)
+    from cooploc.estimators.sme.marginalized import condition_on_positions, motion_kernel
+    from cooploc.motion import ConstantVelocity
+
+    motion = ConstantVelocity(0.25)
+    A, Q = motion.transition_matrix(1.0), motion.noise_covariance(1.0)
+    pos, lin, dx, steps = [0, 1], [2, 3], 4, 6
+    m0 = rng.normal(size=dx)
+    B = rng.normal(size=(dx, dx))
+    P0 = B @ B.T + np.eye(dx)
+    positions = rng.normal(scale=5.0, size=(steps, 2))               # any trajectory: the conditional is exact
+    # brute force: stacked mean and covariance of (x_0, ..., x_{steps−1})
+    mean = [m0]
+    cov = np.zeros((steps * dx, steps * dx))
+    cov[:dx, :dx] = P0
+    for k in range(1, steps):
+        mean.append(A @ mean[-1])
+        prev, cur = slice((k - 1) * dx, k * dx), slice(k * dx, (k + 1) * dx)
+        cov[cur, :k * dx] = A @ cov[prev, :k * dx]
+        cov[:k * dx, cur] = cov[cur, :k * dx].T
+        cov[cur, cur] = A @ cov[prev, prev] @ A.T + Q
+    mean = np.concatenate(mean)
+    observed = np.array([k * dx + i for k in range(steps) for i in pos])
+    target = np.array([(steps - 1) * dx + i for i in lin])
+    gain = np.linalg.solve(cov[np.ix_(observed, observed)], cov[np.ix_(observed, target)]).T
+    want_mean = mean[target] + gain @ (positions.ravel() - mean[observed])
+    want_cov = cov[np.ix_(target, target)] - gain @ cov[np.ix_(observed, target)]
+    # the recursion, one particle, one vehicle
+    block, joint = m0[None, None], P0[None]
+    for k in range(steps):
+        _, K, C = motion_kernel(joint, pos, lin)
+        block = condition_on_positions(block, positions[k][None, None], K, pos, lin)
+        joint = A[:, lin] @ C @ A[:, lin].T + Q
+        block = block @ A.T if k < steps - 1 else block
+    assert np.allclose(block[0, 0, lin], want_mean, rtol=1e-9, atol=1e-9)
+    assert np.allclose(C[0], want_cov, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_rao_blackwellised_pf_is_the_kalman_filter_in_the_linear_case(seed: int) -> None:
+    # N = 1: eq. (17) is the GPS row itself (s_1 = u), linear with exact Gaussian noise,
+    # and there is no topology (T needs two vehicles): the exact posterior is the Kalman
+    # filter's. The Rao–Blackwellised filter's mean and covariance must approach it as the
+    # particles grow, the Monte Carlo error falling like P^(−1/2). Statistic: mean over
+    # steps ≥ 1 and components of |mean − KF mean| / KF sd and |var − KF var| / KF var.
+    # Expected ratio between 16× particles: 1/4; bound 1/2.
+    from cooploc.estimators.kf_known_da import KFKnownDA, KFKnownDAParams
+
+    preset = get_preset("zhang2016-cv")
+    rec = preset.generate(np.random.default_rng([seed, 31]),
+                          preset.params.with_overrides({"n_vehicles": 1, "n_steps": 30}))
+    kf = KFKnownDA(rec.setup, KFKnownDAParams(), np.random.default_rng(0), truth=rec.truth)
+    ref = [kf.step(frame).vehicles for frame in rec.frames]
+    errors = {}
+    for P in (250, 4000):
+        pf = make_estimator("sme-pf", rec.setup, SmePFParams(n_particles=P, rao_blackwellised=True),
+                            np.random.default_rng([seed, 32]))
+        z_mean, z_var = [], []
+        for frame, b in zip(rec.frames, ref, strict=True):
+            a = pf.step(frame).vehicles
+            if frame.k >= 1:
+                var = np.diagonal(b.cov, axis1=1, axis2=2)
+                z_mean.append(np.abs(a.mean - b.mean) / np.sqrt(var))
+                z_var.append(np.abs(np.diagonal(a.cov, axis1=1, axis2=2) - var) / var)
+        errors[P] = (np.mean(z_mean), np.mean(z_var))
+    (m_small, v_small), (m_large, v_large) = errors[250], errors[4000]
+    assert m_large < 0.5 * m_small and v_large < 0.5 * v_small, errors
+    assert m_large < 0.05 and v_large < 0.05, errors
