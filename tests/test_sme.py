@@ -413,7 +413,7 @@ def test_linear_substate_is_the_exact_conditional_of_the_positions(rng: np.rando
     m0 = rng.normal(size=dx)
     B = rng.normal(size=(dx, dx))
     P0 = B @ B.T + np.eye(dx)
-    positions = rng.normal(scale=5.0, size=(steps, 2))               # any trajectory: the conditional is exact
+    positions = rng.normal(scale=5.0, size=(steps, 2))   # any trajectory: the conditional is exact
     # brute force: stacked mean and covariance of (x_0, ..., x_{steps−1})
     mean = [m0]
     cov = np.zeros((steps * dx, steps * dx))
