@@ -42,6 +42,34 @@ model mostly miss the 2N-dimensional likelihood), the linearized one does within
 Carlo noise (``tests/test_sme.py``); ``cooploc reproduce zhang2016`` and
 ``benchmarks/zhang2016.py`` measure both against the particle count.
 
+Rao–Blackwellised (`rao_blackwellised`, linearized proposal)
+-----------------------------------------------------------
+Eq. (19) depends on the positions only, and Zhang's GPS rows are positions: the
+velocities enter through the motion model alone. So the particles can sample the 2N
+positions only and keep, per particle, the Gaussian p(v_k | p_{0:k}, y_{1:k}) in Kalman
+form — the marginalized particle filter of Schön, Gustafsson & Nordlund (IEEE TSP 2005,
+their model (18) with no linear part in the measurement), module `marginalized`. Each
+step the prior kernel of a particle is the position marginal of its joint prediction,
+N(μ_p^i, J_pp) with J = A_{:,v} P A_{:,v}ᵀ + Q; the linearized proposal, the weights and
+the moves above run on those 10 dimensions (N = 5) instead of 20; then each particle's
+velocities are conditioned on its sampled positions (the motion of the sampled substate
+as a measurement of the linear one). A and Q are the same for every particle, so the
+velocity covariance P is shared (one per vehicle), and the estimate's covariance is the
+spread of the particles plus P. The relabelling permutes the velocity means with the
+positions; it is skipped on a step where the vehicles' P differ (a vehicle entered
+lately, so blocks are not exchangeable). The bootstrap proposal always samples the
+whole state. In the joint mode the pseudo-measurements are of positions in every setup
+(rows with velocities enter as their position marginal, `filter_base`), so the split holds
+there; the per-radar mode does not use it.
+
+Why it is the default: paired over the same 10 runs at 8000 particles (about the same
+CPU time per step as the full-state filter) it lowers the total error in CV / CT-2 /
+CT-4 by 0.028 / 0.021 / 0.029 m, reaches the MHT that has exactly SME's information in
+CV and CT-2 (+0.001 / +0.008 m), and in CT-4 moves `sme-pf` from above `kf-known-da` to
+below it (−0.011 m at 8000 particles, not significant at 10 runs; −0.021 m, 90 %
+interval −0.036 … −0.006, at 16000). Numbers and commands: ``docs/sme.md``, "Where
+sme-pf loses".
+
 Other choices the paper leaves open
 -----------------------------------
 - Relabelling. After each update the vehicle blocks of every particle are permuted to
@@ -53,11 +81,14 @@ Other choices the paper leaves open
   estimate of Crouse, Willett et al. 2011), and the predicted cloud unimodal for the
   linearization.
 - `n_particles`: the default, 8000, was chosen from the ``zhang2016-cv`` curve of
-  ``benchmarks/zhang2016.py`` (the numbers are in the benchmark's JSON). Paired over the
-  same runs the total error still falls there: 2000 → 8000 particles −0.06 m in CV,
-  −0.12 m in CT-4, and 8000 → 32000 −0.04 m in CT-4 (1.90 / 1.78 / 1.74 m). What
-  `sme-pf` loses against `kf-known-da` in CT-4 is mostly this particle approximation,
-  not the method (``docs/sme.md``, "Where sme-pf loses").
+  ``benchmarks/zhang2016.py`` (the numbers are in the benchmark's JSON; the full-state
+  filter). Paired over the same runs the full-state filter's total error still falls
+  there: 2000 → 8000 particles −0.06 m in CV, −0.12 m in CT-4, and 8000 → 32000 −0.04 m
+  in CT-4 (1.90 / 1.78 / 1.74 m). The Rao–Blackwellised filter at 8000 is at the
+  full-state filter's 32000 in CT-4 (1.745 m against 1.738 m, 10 runs) and 16000 gain
+  it −0.010 m more (−0.022 … +0.002). What `sme-pf` loses against `kf-known-da` in
+  CT-4 was this particle approximation, not the method (``docs/sme.md``, "Where sme-pf
+  loses").
 - Resampling, effective sample size and the moments of the joint cloud come from
   `cooploc.particles` (`systematic_resample`, `effective_sample_size`,
   `marginal_moments`); a floor of 1e-9 on each block's covariance keeps it positive
@@ -126,7 +157,8 @@ class SmePFParams(_SmeParams):
     max_stages : at most this many tempering stages per step (bootstrap proposal).
     rao_blackwellised : sample only the positions and keep each particle's velocities as
         a Gaussian (marginalized particle filter, Schön et al. 2005; module
-        `marginalized`). Linearized proposal only.
+        `marginalized`); default by measurement (module docstring). The linearized
+        proposal only: the bootstrap one always samples the whole state.
     """
 
     n_particles: int = param(8000, ge=2)
@@ -138,11 +170,7 @@ class SmePFParams(_SmeParams):
     target_ess: float = param(0.5, gt=0, lt=1)
     n_moves: int = param(2, ge=0)
     max_stages: int = param(20, ge=1)
-    rao_blackwellised: bool = False
-
-    def validate(self) -> None:
-        self.require(not self.rao_blackwellised or self.proposal == "linearized", "rao_blackwellised",
-                     "be false with the bootstrap proposal (it is a variant of the linearized one)")
+    rao_blackwellised: bool = True
 
 
 @register_estimator
@@ -172,7 +200,7 @@ class SmePF(_SmeFilter):
         # `_lin_cov` (N, nl, nl) the shared Cov[v | p_{0:k}] of each vehicle slot
         self._lin = [i for i in range(self.dx) if i not in self.pos]
         self._lin_cov: FloatArray | None = np.zeros((0, len(self._lin), len(self._lin))) \
-            if params.rao_blackwellised else None
+            if params.rao_blackwellised and params.proposal == "linearized" else None
 
     def _moments(self) -> tuple[FloatArray, FloatArray]:
         mean, cov = marginal_moments(self.particles, self.log_w)
