@@ -197,6 +197,7 @@ def short_cv(seed: int) -> Recording:
 
 
 @pytest.mark.parametrize("name, params", [("sme-pf", SmePFParams(n_particles=300)),
+                                          ("sme-pf", SmePFParams(n_particles=300, rao_blackwellised=False)),
                                           ("sme-pf", SmePFParams(n_particles=300, proposal="bootstrap")),
                                           ("sme-ukf", SmeUKFParams())])
 def test_filters_track_the_vehicles(name: str, params, short_cv: Recording) -> None:
@@ -346,13 +347,14 @@ def test_auxiliary_update_matches_brute_force_importance_sampling(rng: np.random
 
 
 @pytest.mark.slow
-def test_pf_without_topology_matches_the_known_association_kf(seed: int) -> None:
+@pytest.mark.parametrize("rao_blackwellised", [True, False])
+def test_pf_without_topology_matches_the_known_association_kf(seed: int, rao_blackwellised: bool) -> None:
     # two vehicles 40 m and more apart, the topology switched off: the GPS sums of powers
     # then carry what the associated rows carry, so the particle filter's mean must be the
     # Kalman filter's up to Monte Carlo noise. Statistic: mean over steps ≥ 5, runs and
     # state components of |PF mean − KF mean| / KF standard deviation. Measured with 1000
-    # particles: ≈ 0.07 (an effective sample of ≈ 100); the bootstrap proposal with the same
-    # particles ≈ 0.14. Bound 0.11.
+    # particles: ≈ 0.07 (an effective sample of ≈ 100; Rao–Blackwellised ≈ 0.05);
+    # the bootstrap proposal with the same particles ≈ 0.14. Bound 0.11.
     from cooploc.estimators.kf_known_da import KFKnownDA, KFKnownDAParams
 
     preset = get_preset("zhang2016-cv")
@@ -360,7 +362,8 @@ def test_pf_without_topology_matches_the_known_association_kf(seed: int) -> None
     for run in range(3):
         rec = preset.generate(np.random.default_rng([seed, 21, run]),
                               preset.params.with_overrides({"n_vehicles": 2, "n_steps": 30}))
-        pf = make_estimator("sme-pf", rec.setup, SmePFParams(n_particles=1000, use_radar=False),
+        pf = make_estimator("sme-pf", rec.setup, SmePFParams(n_particles=1000, use_radar=False,
+                                                             rao_blackwellised=rao_blackwellised),
                             np.random.default_rng([seed, 22, run]))
         kf = KFKnownDA(rec.setup, KFKnownDAParams(), np.random.default_rng(0), truth=rec.truth)
         for frame in rec.frames:
@@ -392,3 +395,82 @@ def test_rows_without_the_position_are_refused_by_name(short_cv: Recording) -> N
     setup = dataclasses.replace(short_cv.setup, sensors={**short_cv.setup.sensors, "gnss": velocity_only})
     with pytest.raises(ConfigError, match=r"sme-ukf needs GNSS rows that hold the position \(0, 1\)"):
         make_estimator("sme-ukf", setup, SmeUKFParams(), np.random.default_rng(0))
+
+
+# ----------------------------------------------------------------------------
+# the Rao–Blackwellised (marginalized) particle filter
+# ----------------------------------------------------------------------------
+
+
+def test_linear_substate_is_the_exact_conditional_of_the_positions(rng: np.random.Generator) -> None:
+    # oracle: the joint Gaussian of x_0..x_k under x_k = A x_{k−1} + w_k, conditioned by
+    # brute force on every position p_0..p_k; the recursion of `marginalized` must give
+    # the same mean and covariance of v_k (Schön et al. 2005: the motion of the sampled
+    # substate as a measurement of the linear one)
+    from cooploc.estimators.sme.marginalized import condition_on_positions, motion_kernel
+    from cooploc.motion import ConstantVelocity
+
+    motion = ConstantVelocity(0.25)
+    A, Q = motion.transition_matrix(1.0), motion.noise_covariance(1.0)
+    pos, lin, dx, steps = [0, 1], [2, 3], 4, 6
+    m0 = rng.normal(size=dx)
+    B = rng.normal(size=(dx, dx))
+    P0 = B @ B.T + np.eye(dx)
+    positions = rng.normal(scale=5.0, size=(steps, 2))   # any trajectory: the conditional is exact
+    # brute force: stacked mean and covariance of (x_0, ..., x_{steps−1})
+    mean = [m0]
+    cov = np.zeros((steps * dx, steps * dx))
+    cov[:dx, :dx] = P0
+    for k in range(1, steps):
+        mean.append(A @ mean[-1])
+        prev, cur = slice((k - 1) * dx, k * dx), slice(k * dx, (k + 1) * dx)
+        cov[cur, :k * dx] = A @ cov[prev, :k * dx]
+        cov[:k * dx, cur] = cov[cur, :k * dx].T
+        cov[cur, cur] = A @ cov[prev, prev] @ A.T + Q
+    mean = np.concatenate(mean)
+    observed = np.array([k * dx + i for k in range(steps) for i in pos])
+    target = np.array([(steps - 1) * dx + i for i in lin])
+    gain = np.linalg.solve(cov[np.ix_(observed, observed)], cov[np.ix_(observed, target)]).T
+    want_mean = mean[target] + gain @ (positions.ravel() - mean[observed])
+    want_cov = cov[np.ix_(target, target)] - gain @ cov[np.ix_(observed, target)]
+    # the recursion, one particle, one vehicle
+    block, joint = m0[None, None], P0[None]
+    for k in range(steps):
+        _, K, C = motion_kernel(joint, pos, lin)
+        block = condition_on_positions(block, positions[k][None, None], K, pos, lin)
+        joint = A[:, lin] @ C @ A[:, lin].T + Q
+        block = block @ A.T if k < steps - 1 else block
+    assert np.allclose(block[0, 0, lin], want_mean, rtol=1e-9, atol=1e-9)
+    assert np.allclose(C[0], want_cov, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.slow
+def test_rao_blackwellised_pf_is_the_kalman_filter_in_the_linear_case(seed: int) -> None:
+    # N = 1: eq. (17) is the GPS row itself (s_1 = u), linear with exact Gaussian noise,
+    # and there is no topology (T needs two vehicles): the exact posterior is the Kalman
+    # filter's. The Rao–Blackwellised filter's mean and covariance must approach it as the
+    # particles grow, the Monte Carlo error falling like P^(−1/2). Statistic: mean over
+    # steps ≥ 1 and components of |mean − KF mean| / KF sd and |var − KF var| / KF var.
+    # Expected ratio between 16× particles: 1/4; bound 1/2.
+    from cooploc.estimators.kf_known_da import KFKnownDA, KFKnownDAParams
+
+    preset = get_preset("zhang2016-cv")
+    rec = preset.generate(np.random.default_rng([seed, 31]),
+                          preset.params.with_overrides({"n_vehicles": 1, "n_steps": 30}))
+    kf = KFKnownDA(rec.setup, KFKnownDAParams(), np.random.default_rng(0), truth=rec.truth)
+    ref = [kf.step(frame).vehicles for frame in rec.frames]
+    errors = {}
+    for P in (250, 4000):
+        pf = make_estimator("sme-pf", rec.setup, SmePFParams(n_particles=P, rao_blackwellised=True),
+                            np.random.default_rng([seed, 32]))
+        z_mean, z_var = [], []
+        for frame, b in zip(rec.frames, ref, strict=True):
+            a = pf.step(frame).vehicles
+            if frame.k >= 1:
+                var = np.diagonal(b.cov, axis1=1, axis2=2)
+                z_mean.append(np.abs(a.mean - b.mean) / np.sqrt(var))
+                z_var.append(np.abs(np.diagonal(a.cov, axis1=1, axis2=2) - var) / var)
+        errors[P] = (np.mean(z_mean), np.mean(z_var))
+    (m_small, v_small), (m_large, v_large) = errors[250], errors[4000]
+    assert m_large < 0.5 * m_small and v_large < 0.5 * v_small, errors
+    assert m_large < 0.05 and v_large < 0.05, errors

@@ -21,10 +21,13 @@ The problem apart from the filters that use it:
 - `traffic` — which vehicles each radar sees (its pose registered and tracked by the
   estimator) and the gate groups of anonymous rows;
 - `pf` — `sme-pf` (`SmePF`, `SmePFParams`): the paper's particle filter, by default with
-  the linearized optimal proposal of `proposal` (an auxiliary particle filter), or
-  drawing from the motion model (``proposal="bootstrap"``);
+  the linearized optimal proposal of `proposal` (an auxiliary particle filter) over the
+  positions only, the velocities marginalized (`marginalized`), or drawing the whole
+  state from the motion model (``proposal="bootstrap"``);
 - `proposal` — the linearized proposal: eq. (19) linearized by statistical linear
   regression over the predicted cloud, each particle's Kalman posterior under it;
+- `marginalized` — the velocities of the Rao–Blackwellised (marginalized) particle
+  filter: per particle a Gaussian given its sampled positions (Schön et al. 2005);
 - `ukf` — `sme-ukf` (`SmeUKF`, `SmeUKFParams`): the §4.2.3 check under a UKF.
 
 The particle toolkit (resampling, effective sample size, moments) is

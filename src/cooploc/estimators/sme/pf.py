@@ -42,6 +42,34 @@ model mostly miss the 2N-dimensional likelihood), the linearized one does within
 Carlo noise (``tests/test_sme.py``); ``cooploc reproduce zhang2016`` and
 ``benchmarks/zhang2016.py`` measure both against the particle count.
 
+Rao–Blackwellised (`rao_blackwellised`, linearized proposal)
+-----------------------------------------------------------
+Eq. (19) depends on the positions only, and Zhang's GPS rows are positions: the
+velocities enter through the motion model alone. So the particles can sample the 2N
+positions only and keep, per particle, the Gaussian p(v_k | p_{0:k}, y_{1:k}) in Kalman
+form — the marginalized particle filter of Schön, Gustafsson & Nordlund (IEEE TSP 2005,
+their model (18) with no linear part in the measurement), module `marginalized`. Each
+step the prior kernel of a particle is the position marginal of its joint prediction,
+N(μ_p^i, J_pp) with J = A_{:,v} P A_{:,v}ᵀ + Q; the linearized proposal, the weights and
+the moves above run on those 10 dimensions (N = 5) instead of 20; then each particle's
+velocities are conditioned on its sampled positions (the motion of the sampled substate
+as a measurement of the linear one). A and Q are the same for every particle, so the
+velocity covariance P is shared (one per vehicle), and the estimate's covariance is the
+spread of the particles plus P. The relabelling permutes the velocity means with the
+positions; it is skipped on a step where the vehicles' P differ (a vehicle entered
+lately, so blocks are not exchangeable). The bootstrap proposal always samples the
+whole state. In the joint mode the pseudo-measurements are of positions in every setup
+(rows with velocities enter as their position marginal, `filter_base`), so the split holds
+there; the per-radar mode does not use it.
+
+Why it is the default: paired over the same 10 runs at 8000 particles (about the same
+CPU time per step as the full-state filter) it lowers the total error in CV / CT-2 /
+CT-4 by 0.028 / 0.021 / 0.029 m, reaches the MHT that has exactly SME's information in
+CV and CT-2 (+0.001 / +0.008 m), and in CT-4 moves `sme-pf` from above `kf-known-da` to
+below it (−0.011 m at 8000 particles, not significant at 10 runs; −0.021 m, 90 %
+interval −0.036 … −0.006, at 16000). Numbers and commands: ``docs/sme.md``, "Where
+sme-pf loses".
+
 Other choices the paper leaves open
 -----------------------------------
 - Relabelling. After each update the vehicle blocks of every particle are permuted to
@@ -53,11 +81,14 @@ Other choices the paper leaves open
   estimate of Crouse, Willett et al. 2011), and the predicted cloud unimodal for the
   linearization.
 - `n_particles`: the default, 8000, was chosen from the ``zhang2016-cv`` curve of
-  ``benchmarks/zhang2016.py`` (the numbers are in the benchmark's JSON). Paired over the
-  same runs the total error still falls there: 2000 → 8000 particles −0.06 m in CV,
-  −0.12 m in CT-4, and 8000 → 32000 −0.04 m in CT-4 (1.90 / 1.78 / 1.74 m). What
-  `sme-pf` loses against `kf-known-da` in CT-4 is mostly this particle approximation,
-  not the method (``docs/sme.md``, "Where sme-pf loses").
+  ``benchmarks/zhang2016.py`` (the numbers are in the benchmark's JSON; the full-state
+  filter). Paired over the same runs the full-state filter's total error still falls
+  there: 2000 → 8000 particles −0.06 m in CV, −0.12 m in CT-4, and 8000 → 32000 −0.04 m
+  in CT-4 (1.90 / 1.78 / 1.74 m). The Rao–Blackwellised filter at 8000 is at the
+  full-state filter's 32000 in CT-4 (1.745 m against 1.738 m, 10 runs) and 16000 gain
+  it −0.010 m more (−0.022 … +0.002). What `sme-pf` loses against `kf-known-da` in
+  CT-4 was this particle approximation, not the method (``docs/sme.md``, "Where sme-pf
+  loses").
 - Resampling, effective sample size and the moments of the joint cloud come from
   `cooploc.particles` (`systematic_resample`, `effective_sample_size`,
   `marginal_moments`); a floor of 1e-9 on each block's covariance keeps it positive
@@ -124,6 +155,10 @@ class SmePFParams(_SmeParams):
         independence moves with the linearized proposal, random-walk moves with the
         bootstrap one (0: none).
     max_stages : at most this many tempering stages per step (bootstrap proposal).
+    rao_blackwellised : sample only the positions and keep each particle's velocities as
+        a Gaussian (marginalized particle filter, Schön et al. 2005; module
+        `marginalized`); default by measurement (module docstring). The linearized
+        proposal only: the bootstrap one always samples the whole state.
     """
 
     n_particles: int = param(8000, ge=2)
@@ -135,6 +170,7 @@ class SmePFParams(_SmeParams):
     target_ess: float = param(0.5, gt=0, lt=1)
     n_moves: int = param(2, ge=0)
     max_stages: int = param(20, ge=1)
+    rao_blackwellised: bool = True
 
 
 @register_estimator
@@ -160,9 +196,16 @@ class SmePF(_SmeFilter):
         self._L_Q = np.linalg.cholesky(self.Q + 1e-12 * np.eye(self.dx))
         self._perms: IntArray | None = None
         self._started = False
+        # Rao–Blackwellised: the velocity entries of the particles hold E[v | p_{0:k}], and
+        # `_lin_cov` (N, nl, nl) the shared Cov[v | p_{0:k}] of each vehicle slot
+        self._lin = [i for i in range(self.dx) if i not in self.pos]
+        self._lin_cov: FloatArray | None = np.zeros((0, len(self._lin), len(self._lin))) \
+            if params.rao_blackwellised and params.proposal == "linearized" else None
 
     def _moments(self) -> tuple[FloatArray, FloatArray]:
         mean, cov = marginal_moments(self.particles, self.log_w)
+        if self._lin_cov is not None:   # the mixture's covariance: spread of the means + Cov[v | p]
+            cov[np.ix_(np.arange(cov.shape[0]), self._lin, self._lin)] += self._lin_cov
         return mean, cov + 1e-9 * np.eye(self.dx)  # keep SPD when particles collapse
 
     def _sync(self, frame: Frame) -> None:
@@ -198,6 +241,8 @@ class SmePF(_SmeFilter):
         n = self.ids.size
         if not self.params.relabel or n < 2 or n > _MAX_EXHAUSTIVE:
             return
+        if self._lin_cov is not None and not np.allclose(self._lin_cov, self._lin_cov[0], rtol=1e-9, atol=0):
+            return   # slots of different Cov[v | p] (a vehicle entered lately): blocks not exchangeable
         if self._perms is None or self._perms.shape[1] != n:
             self._perms = np.array(list(itertools.permutations(range(n))), dtype=np.int64)
         for iteration in range(self.params.relabel_iterations):
@@ -312,6 +357,9 @@ class SmePF(_SmeFilter):
         born = present[~np.isin(present, self.ids)]
         mean = [self.particles[:, keep] @ self.F.T]
         cov = [np.repeat(self.Q[None], int(keep.sum()), axis=0)]
+        if self._lin_cov is not None:   # J = A_{:,v} Cov[v | p] A_{:,v}ᵀ + Q (module `marginalized`)
+            A_v = self.F[:, self._lin]
+            cov[0] = cov[0] + A_v @ self._lin_cov[keep] @ A_v.T
         ids = [self.ids[keep]]
         if born.size:
             predicted = mean[0][:, :, self.pos].mean(0) if keep.any() else np.zeros((0, 2))
@@ -332,12 +380,17 @@ class SmePF(_SmeFilter):
         linearized posteriors, weights p(y | x) / N(y; H x + c, Λ). When the effective
         sample size falls below `resample_threshold`, the cloud is resampled and moved by
         `n_moves` independence Metropolis–Hastings sweeps with the same proposal.
+        Rao–Blackwellised, all of this runs on the positions alone, with the prior kernels'
+        position marginals, and each particle's velocities are then conditioned on its
+        sampled positions (module `marginalized`).
         """
         mu, Sigma0 = self._prior_kernel(frame)
         info: dict[str, Any] = {"n_particles": self.params.n_particles, "stages": 0}
         n = self.ids.size
         if n == 0:
             self.particles = mu
+            if self._lin_cov is not None:
+                self._lin_cov = np.zeros((0, len(self._lin), len(self._lin)))
             info.update(set_valued=True, skipped=[], ess=float(self.params.n_particles), resampled=False)
             return Estimate(StateSet.empty(self.dx), None, info)
         # predicted per-vehicle moments: the spread of the kernels' means plus Σ₀
@@ -345,67 +398,84 @@ class SmePF(_SmeFilter):
         model, pm_info = self._pseudo_measurement(frame, mean, spread + Sigma0)
         info.update(pm_info)
         info["resampled"] = False
+        # what is sampled: the whole block, or (Rao–Blackwellised) its positions
+        if self._lin_cov is None:
+            x_mu, x_cov, x_pos = mu, Sigma0, self.pos
+        else:
+            from cooploc.estimators.sme.marginalized import motion_kernel
+
+            x_cov, gain, lin_cov = motion_kernel(Sigma0, self.pos, self._lin)
+            x_mu, x_pos = np.ascontiguousarray(mu[:, :, self.pos]), list(range(len(self.pos)))
+        parents = np.arange(self.params.n_particles)
         if model.y_gnss is None and model.y_radar is None:
             # nothing measured: draw from the prior kernels (the motion model)
-            L = np.linalg.cholesky(Sigma0)
-            self.particles = mu + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(mu.shape))
+            L = np.linalg.cholesky(x_cov)
+            self.particles = x_mu + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(x_mu.shape))
         else:
             try:
-                proposal = linearized_proposal(mu, Sigma0, self.log_w, model, self.pos,
+                proposal = linearized_proposal(x_mu, x_cov, self.log_w, model, x_pos,
                                                self.params.linearization_iterations)
             except np.linalg.LinAlgError:
                 # the linearization lost positive definiteness (vehicles on top of each other,
                 # float64): this step draws from the motion model and weighs by p(y | x)
-                return self._fallback_step(mu, Sigma0, mean, model, info)
-            # auxiliary particle filter (Pitt & Shephard 1999): parents by w_j λ_j ...
-            idx = systematic_resample(self.log_w + proposal.log_predictive, self.rng)[0]
-            centres = proposal.mean[idx]
-            self.particles = proposal.draw(centres, self.rng)
-            # ... then w ∝ p(y | x) / N(y; H x + c, Λ): p(x | x_j) λ_j / q(x | x_j, y) is
-            # exactly the linearized likelihood, so only the linearization error weighs
-            log_ratio = self._log_ratio(model, proposal, self.particles)
-            if not np.isfinite(log_ratio).any():
-                log_ratio = np.zeros_like(log_ratio)
-                info["degenerate"] = True
-            self.log_w = log_ratio - log_sum_exp(log_ratio, axis=None)
-            info["stages"] = 1
-            info["ess"] = self._ess()
-            if info["ess"] < self.params.resample_threshold * self.params.n_particles:
-                keep = self._resample()
-                info["resampled"] = True
-                if self.params.n_moves:
-                    info["acceptance"] = self._independence_moves(model, proposal, centres[keep],
-                                                                  log_ratio[keep])
+                parents = self._fallback_step(x_mu, x_cov, model, info, x_pos)
+            else:
+                # auxiliary particle filter (Pitt & Shephard 1999): parents by w_j λ_j ...
+                parents = systematic_resample(self.log_w + proposal.log_predictive, self.rng)[0]
+                centres = proposal.mean[parents]
+                self.particles = proposal.draw(centres, self.rng)
+                # ... then w ∝ p(y | x) / N(y; H x + c, Λ): p(x | x_j) λ_j / q(x | x_j, y) is
+                # exactly the linearized likelihood, so only the linearization error weighs
+                log_ratio = self._log_ratio(model, proposal, self.particles, x_pos)
+                if not np.isfinite(log_ratio).any():
+                    log_ratio = np.zeros_like(log_ratio)
+                    info["degenerate"] = True
+                self.log_w = log_ratio - log_sum_exp(log_ratio, axis=None)
+                info["stages"] = 1
+                info["ess"] = self._ess()
+                if info["ess"] < self.params.resample_threshold * self.params.n_particles:
+                    keep = self._resample()
+                    parents = parents[keep]
+                    info["resampled"] = True
+                    if self.params.n_moves:
+                        info["acceptance"] = self._independence_moves(model, proposal, centres[keep],
+                                                                      log_ratio[keep], x_pos)
+        if self._lin_cov is not None:
+            from cooploc.estimators.sme.marginalized import condition_on_positions
+
+            self.particles = condition_on_positions(mu[parents], self.particles, gain, self.pos, self._lin)
+            self._lin_cov = lin_cov
         self._relabel(mean)
         info.setdefault("ess", self._ess())
         return self._estimate(info)
 
-    def _fallback_step(self, mu: FloatArray, Sigma0: FloatArray, reference: FloatArray,
-                       model: PseudoMeasurement, info: dict[str, Any]) -> Estimate:
-        """A bootstrap step (draw from the prior kernels, weigh by the pseudo-likelihood)."""
+    def _fallback_step(self, mu: FloatArray, Sigma0: FloatArray, model: PseudoMeasurement,
+                       info: dict[str, Any], pos: list[int]) -> IntArray:
+        """A bootstrap update (draw from the prior kernels, weigh by the pseudo-likelihood);
+        returns each particle's parent (P,)."""
         L = np.linalg.cholesky(Sigma0)
         self.particles = mu + np.einsum("nij,pnj->pni", L, self.rng.standard_normal(mu.shape))
-        loglik = model.log_likelihood(self.particles[:, :, self.pos])
+        loglik = model.log_likelihood(self.particles[:, :, pos])
         self.log_w = self.log_w + np.where(np.isfinite(loglik), loglik, -np.inf)
         if not np.isfinite(self.log_w).any():
             self.log_w = np.zeros_like(self.log_w)
             info["degenerate"] = True
         self.log_w -= log_sum_exp(self.log_w, axis=None)
         info.update(stages=1, proposal_fallback=True, ess=self._ess())
+        parents = np.arange(self.log_w.size)
         if info["ess"] < self.params.resample_threshold * self.params.n_particles:
-            self._resample()
+            parents = self._resample()
             info["resampled"] = True
-        self._relabel(reference)
-        return self._estimate(info)
+        return parents
 
-    def _log_ratio(self, model: PseudoMeasurement, proposal: LinearizedProposal, x: FloatArray
-                   ) -> FloatArray:
+    def _log_ratio(self, model: PseudoMeasurement, proposal: LinearizedProposal, x: FloatArray,
+                   pos: list[int]) -> FloatArray:
         """log p(y | x) − log N(y; H x + c, Λ): the second-stage weight of particles x (P,)."""
-        loglik = model.log_likelihood(x[:, :, self.pos])
+        loglik = model.log_likelihood(x[:, :, pos])
         return np.where(np.isfinite(loglik), loglik, -np.inf) - proposal.linearized_log_likelihood(x)
 
     def _independence_moves(self, model: PseudoMeasurement, proposal: LinearizedProposal,
-                            centres: FloatArray, log_ratio: FloatArray) -> float:
+                            centres: FloatArray, log_ratio: FloatArray, pos: list[int]) -> float:
         """`n_moves` independence Metropolis–Hastings sweeps of the resampled particles.
 
         Target p(x | x_j) p(y | x) for each particle's parent j, proposal N(μ_j^+, Σ^+):
@@ -415,7 +485,7 @@ class SmePF(_SmeFilter):
         accepted = 0
         for _ in range(self.params.n_moves):
             candidate = proposal.draw(centres, self.rng)
-            candidate_ratio = self._log_ratio(model, proposal, candidate)
+            candidate_ratio = self._log_ratio(model, proposal, candidate, pos)
             log_alpha = np.nan_to_num(candidate_ratio - log_ratio, nan=-np.inf)
             accept = np.log(self.rng.random(log_alpha.size)) < log_alpha
             self.particles[accept] = candidate[accept]
@@ -435,7 +505,7 @@ class SmePF(_SmeFilter):
             proposal = linearized_proposal(prior, cov, np.zeros(P), model, self.pos,
                                            self.params.linearization_iterations)
             x = proposal.draw(proposal.mean, self.rng)
-            log_w = self._log_ratio(model, proposal, x)
+            log_w = self._log_ratio(model, proposal, x, self.pos)
         except np.linalg.LinAlgError:
             # no positive definite linearization: draw from the prior, weigh by p(y | x)
             L = np.linalg.cholesky(cov)
