@@ -219,7 +219,8 @@ def recording_inputs(recording: Recording) -> tuple[AnonymousModel, FloatArray, 
 
 
 def set_squared_errors(estimates: FloatArray, truth: FloatArray) -> FloatArray:
-    """(K,) Σ_v ‖p̂ − p‖² after the optimal assignment per step; estimates, truth (K, N, 2)."""
-    perms = permutations(truth.shape[1])
-    cost = ((estimates[:, perms] - truth[:, None]) ** 2).sum((-1, -2))   # (K, N!)
-    return cost.min(axis=1)
+    """(K,) Σ_v ‖p̂ − p‖² after the optimal assignment per step (`metrics.set_errors`, as
+    the set-valued filters are scored); estimates, truth (K, N, 2)."""
+    from cooploc.metrics import set_errors
+
+    return np.array([(set_errors(e, t) ** 2).sum() for e, t in zip(estimates, truth, strict=True)])
