@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cooploc.types import FloatArray, IntArray
+from cooploc.types import FloatArray, IntArray, lookup_ids
 
 __all__ = ["NEGLIGIBLE", "TrackMessages"]
 
@@ -105,13 +105,8 @@ class TrackMessages:
 
     def find(self, feature: IntArray, vehicle: IntArray) -> IntArray:
         """Index of each (feature, vehicle)'s message, −1 where it has none."""
-        key = self._key(self.feature, self.vehicle)
-        order = np.argsort(key)
-        want = self._key(feature, vehicle)
-        pos = np.minimum(np.searchsorted(key[order], want), max(key.size - 1, 0))
-        found = key.size > 0
-        hit = (key[order][pos] == want) if found else np.zeros(want.size, bool)
-        return np.where(hit, order[pos] if found else -1, -1)
+        pos, found = lookup_ids(self._key(self.feature, self.vehicle), self._key(feature, vehicle))
+        return np.where(found, pos, -1)
 
     def drop_features(self, gone: IntArray) -> None:
         self._keep(~np.isin(self.feature, gone))
