@@ -223,9 +223,8 @@ def _run(args: list[str], what: str, cwd: Path, *, check: bool = True,
 PEDESTRIAN_OPTIONS = ("--sidewalks.guess", "true", "--crossings.guess", "true", "--walkingareas", "true")
 #: netgenerate options of the grid (`cache_key` hashes them), with crossings and walking
 #: areas (`PEDESTRIAN_OPTIONS`).
-GRID_OPTIONS = ("--default.lanenumber", "1", "--sidewalks.guess", "true", "--crossings.guess", "true",
-                "--walkingareas", "true", "--default-junction-type", "traffic_light", "--seed", "0",
-                "--no-warnings", "true")
+GRID_OPTIONS = ("--default.lanenumber", "1", *PEDESTRIAN_OPTIONS, "--default-junction-type", "traffic_light",
+                "--seed", "0", "--no-warnings", "true")
 
 
 def _binary(name: str) -> str:
