@@ -127,3 +127,11 @@ def test_reads_the_paper_recording(seed: int) -> None:
     assert np.all(np.abs(topology - mean) <= NOISE_SIGMAS * np.sqrt(var))
     errors = set_squared_errors(hypothesis_filter(model, gnss, topology, 8), p)
     assert np.all(np.isfinite(errors)) and errors.mean() < 5 * 2 * model.gnss_var
+
+
+def test_topology_without_radar_variance_is_a_clear_error() -> None:
+    from cooploc.errors import CooplocError
+
+    model = _model(np.array([[0.0, 0.0], [30.0, 0.0]]), radar_var=None)
+    with pytest.raises(CooplocError, match="radar_var"):
+        hypothesis_filter(model, np.zeros((1, 2, 2)), np.array([1.0]))

@@ -50,6 +50,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cooploc.errors import InvalidInputError
 from cooploc.estimators.sme.pseudo_measurement import topology_moments
 from cooploc.gaussian import Gaussians, block_diagonal, gaussian_logpdf, kf_predict, kf_update
 from cooploc.particles import log_sum_exp
@@ -167,7 +168,7 @@ def hypothesis_filter(model: AnonymousModel, gnss: FloatArray, topology: FloatAr
     max_hypotheses : components kept per step.
     """
     if topology is not None and model.radar_var is None:
-        raise ValueError("hypothesis_filter: the topology needs model.radar_var")
+        raise InvalidInputError("hypothesis_filter: the topology needs model.radar_var")
     perms = permutations(model.n)
     d = model.n * model.dx
     belief = Gaussians(model.prior_mean.reshape(1, d), block_diagonal(model.prior_cov)[None])
@@ -189,12 +190,12 @@ def hypothesis_filter(model: AnonymousModel, gnss: FloatArray, topology: FloatAr
 def recording_inputs(recording: Recording) -> tuple[AnonymousModel, FloatArray, FloatArray]:
     """The model, the GPS rows (K, N, 2) and the measured T (K,) of a Zhang recording.
 
-    Raises ValueError where the recording is not the paper's case: every vehicle present
+    Raises InvalidInputError where the recording is not the paper's case: every vehicle present
     at every step, one GPS row and one radar row per vehicle, equal row covariances.
     """
     setup, truth = recording.setup, recording.truth
     if not truth.vehicle_present.all():
-        raise ValueError("hypothesis filter: every vehicle must be present at every step")
+        raise InvalidInputError("hypothesis filter: every vehicle must be present at every step")
     n = truth.vehicle_ids.size
     gnss, topology = [], []
     variances = {}
@@ -202,10 +203,10 @@ def recording_inputs(recording: Recording) -> tuple[AnonymousModel, FloatArray, 
         for kind in ("gnss", "radar"):
             batch = frame.batches.get(kind)
             if batch is None or batch.z.shape[0] != n:
-                raise ValueError(f"hypothesis filter: step {frame.k} has no {kind} row per vehicle")
+                raise InvalidInputError(f"hypothesis filter: step {frame.k} has no {kind} row per vehicle")
             var = np.trace(batch.cov, axis1=1, axis2=2) / 2
             if not np.allclose(var, var[0]) or not np.allclose(var, variances.setdefault(kind, var[0])):
-                raise ValueError(f"hypothesis filter: the {kind} rows must share one variance")
+                raise InvalidInputError(f"hypothesis filter: the {kind} rows must share one variance")
         gnss.append(frame.batches["gnss"].z[:, :2])
         q = frame.batches["radar"].z[:, :2]
         topology.append(n * ((q - q.mean(0)) ** 2).sum())        # T = N Σ ‖q_i − q̄‖² (eq. 18)
