@@ -56,6 +56,17 @@ def test_good_config_round_trips():
     assert config.to_dict() == GOOD
 
 
+def test_scenario_params_left_out_are_the_presets():
+    # a hand-written config.toml names a few keys; the rest are the preset's, not the
+    # parameter class's defaults (which would put sumo-braunschweig-tlr on the grid)
+    config = ExperimentConfig.from_dict({"scenario": "sumo-braunschweig-tlr", "estimators": {"gnss-kf": {}},
+                                         "scenario_params": {"duration": 30.0}})
+    assert config.scenario_params.network == "braunschweig"
+    assert config.scenario_params.duration == 30.0
+    partial = ExperimentConfig.from_dict({"scenario": "froehle2018", "estimators": {"gnss-kf": {}}})
+    assert partial.scenario_params == ExperimentConfig.build("froehle2018", ["gnss-kf"]).scenario_params
+
+
 def test_with_overrides_keeps_what_is_not_given():
     config = ExperimentConfig.from_dict(GOOD).with_overrides(
         ["oracle-kf", "kf-known-da"], scenario_overrides={"n_features": "4"},

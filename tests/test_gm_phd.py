@@ -88,6 +88,23 @@ def test_merge_is_moment_matching(rng: np.random.Generator) -> None:
     np.testing.assert_allclose(merged.cov[heavy], cov, rtol=1e-12)
 
 
+def test_cap_is_per_label_where_components_are_labelled(rng: np.random.Generator) -> None:
+    # 30 vehicles of 3 far-apart components each, J_max = 2: anonymous, the 2 heaviest of
+    # all survive; labelled, the 2 heaviest of every vehicle (none is dropped whole)
+    means = np.zeros((90, 4))
+    means[:, 0] = 100.0 * np.arange(90)
+    covs = np.repeat(np.eye(4)[None], 90, 0)
+    log_w = np.log(rng.uniform(0.1, 1.0, 90))
+    labels = np.repeat(np.arange(30) * 7 + 3, 3)
+    anonymous = merge_components(Mixture(log_w, means, covs), 1e-5, 4.0, 2)
+    np.testing.assert_array_equal(np.sort(anonymous.log_w), np.sort(log_w)[-2:])
+    labelled = merge_components(Mixture(log_w, means, covs, labels), 1e-5, 4.0, 2)
+    np.testing.assert_array_equal(np.unique(labelled.labels, return_counts=True)[1], np.full(30, 2))
+    for v in np.unique(labels):
+        np.testing.assert_array_equal(np.sort(labelled.log_w[labelled.labels == v]),
+                                      np.sort(log_w[labels == v])[-2:])
+
+
 def test_extracts_one_belief_per_vehicle_even_when_targets_merge(recording: Recording) -> None:
     est = GMPHD(recording.setup, GMPHDParams(), np.random.default_rng(0))
     est.step(recording.frames[0])

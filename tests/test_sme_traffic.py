@@ -185,6 +185,35 @@ def test_gm_phd_with_identified_rows_follows_gnss_kf(traffic_recording: Recordin
         assert gap(phd) < 0.5 * gap(plain)   # 0.11 m against 0.91 m here
 
 
+def test_gm_phd_with_more_vehicles_than_its_cap_keeps_every_vehicle(traffic_recording: Recording) -> None:
+    # 14 vehicles, J_max = 5: the cap is per vehicle's PHD, so each keeps its filter (a cap
+    # over the whole mixture dropped 9 vehicles, reported at the origin with broad beliefs)
+    phd = _run("gm-phd", traffic_recording, list(traffic_recording.frames), max_components=5)
+    kf = _run("gnss-kf", traffic_recording, list(traffic_recording.frames))
+    for a, b in zip(phd, kf, strict=True):
+        np.testing.assert_allclose(a.vehicles.mean[:, :2], b.vehicles.mean[:, :2], atol=0.5)
+
+
+def test_gm_phd_vehicle_connected_without_a_row_is_born_on_its_first(traffic_recording: Recording) -> None:
+    # the first vehicle to connect after the start names no GNSS row in its first 3 steps:
+    # its PHD starts at its first row, and from there it is gnss-kf's within the usual 0.5 m
+    frames = list(traffic_recording.frames)
+    start, vehicle = next((k, np.setdiff1d(g.vehicles, f.vehicles)[0])
+                          for k, (f, g) in enumerate(itertools.pairwise(frames), 1)
+                          if np.setdiff1d(g.vehicles, f.vehicles).size)
+    for k in range(start, start + 3):
+        f = frames[k]
+        g = f.batches["gnss"]
+        assert vehicle in f.vehicles and vehicle in g.subject
+        rows = {**f.batches, "gnss": g.select(g.subject != vehicle)}
+        frames[k] = Frame(f.k, f.t, f.vehicles, rows, f.links)
+    phd = _run("gm-phd", traffic_recording, frames)
+    kf = _run("gnss-kf", traffic_recording, frames)
+    for a, b in zip(phd[start + 3:], kf[start + 3:], strict=True):
+        np.testing.assert_allclose(a.vehicles.mean[:, :2], b.vehicles.mean[:, :2], atol=0.5)
+        assert a.vehicles.cov[:, 0, 0].max() < 100.0     # no vehicle left with the broad belief
+
+
 def test_gm_phd_odometry_reweighs_a_vehicles_components_and_keeps_its_mass(traffic_recording: Recording
                                                                            ) -> None:
     from scipy.stats import multivariate_normal

@@ -183,6 +183,7 @@ class ExperimentConfig:
     def from_dict(cls, data: Mapping[str, Any]) -> ExperimentConfig:
         """Inverse of `to_dict` (e.g. a config.toml written by `cooploc run`).
 
+        `scenario_params` may name only some keys: the others are the preset's.
         Every key is checked: an unknown key, or a value of the wrong kind (e.g.
         `estimators` not a table of tables), is a `ConfigError` naming key and value.
         """
@@ -212,7 +213,9 @@ class ExperimentConfig:
                 raise ConfigError(f"configuration: estimators.{name} must be a table of parameters, "
                                   f"got {params!r}")
             specs.append(EstimatorSpec(name, get_estimator(name).Params.from_dict(params)))
-        return cls(scenario, type(preset.params).from_dict(scenario_params), tuple(specs),
+        # keys left out keep the preset's values (not the parameter class's defaults, which
+        # for the SUMO presets would be the grid's network)
+        return cls(scenario, preset.params.with_overrides(scenario_params), tuple(specs),
                    runs=data.get("runs", 10), seed=data.get("seed", 0),
                    backend=data.get("backend", "processes"), workers=data.get("workers"),
                    scheduler=data.get("scheduler"))

@@ -179,7 +179,11 @@ def _first_best(score: FloatArray, rank: IntArray) -> int:
 
 def merge_components(mixture: Mixture, prune_threshold: float, merge_threshold: float,
                      max_components: int) -> Mixture:
-    """Pruning, merging and capping (Vo & Ma Table II), vectorised over components."""
+    """Pruning, merging and capping (Vo & Ma Table II), vectorised over components.
+
+    The cap J_max = `max_components` holds for the whole mixture, or per label where the
+    components are labelled (each vehicle's PHD its own).
+    """
     keep = mixture.log_w > np.log(prune_threshold)
     m = mixture.take(keep)
     if len(m) == 0:
@@ -206,9 +210,19 @@ def merge_components(mixture: Mixture, prune_threshold: float, merge_threshold: 
         remaining[group] = False
     merged = Mixture(np.array(out_w), np.array(out_m), np.array(out_P),
                      None if m.label is None else np.array(out_l, dtype=np.int64))
-    if len(merged) > max_components:
-        merged = merged.take(np.argsort(-merged.log_w, kind="stable")[:max_components])
-    return merged
+    if merged.label is None:
+        if len(merged) > max_components:
+            merged = merged.take(np.argsort(-merged.log_w, kind="stable")[:max_components])
+        return merged
+    # labelled: each vehicle's PHD is capped on its own, so that a city with more vehicles
+    # than J_max does not lose whole vehicles to the cap
+    order = np.lexsort((-merged.log_w, merged.label))                    # by label, heaviest first
+    labels = merged.label[order]
+    starts = np.r_[0, np.flatnonzero(np.diff(labels)) + 1]
+    rank = np.arange(labels.size) - np.repeat(starts, np.diff(np.r_[starts, labels.size]))
+    if rank.max() < max_components:
+        return merged
+    return merged.take(np.sort(order[rank < max_components]))
 
 
 @dataclass(frozen=True)
@@ -220,7 +234,8 @@ class GMPHDParams(Params):
     birth_weight : weight of each measurement-driven birth component (0: no births).
     prune_threshold : T of Table II.
     merge_threshold : U of Table II (squared Mahalanobis distance).
-    max_components : J_max of Table II.
+    max_components : J_max of Table II: of the whole mixture with anonymous rows, of each
+        vehicle's PHD with identified rows (a city has more vehicles than Vo & Ma's 100).
     use_identities : where the GNSS rows name their vehicle (`GnssPosition`), each vehicle
         has its own PHD (components labelled with its id; docs/gm_phd.md); False: the
         identities are ignored, as with anonymous rows.
@@ -341,23 +356,27 @@ class GMPHD:
                       subject: IntArray) -> tuple[Mixture, IntArray]:
         """Births of the vehicles that connected this step, and the rows they take (docs/gm_phd.md).
 
-        The fusion centre knows how many vehicles connected, not which rows are theirs: the
-        rows left over by an optimal assignment of the rows to the predicted components of
-        weight ≥ 0.5 (squared Mahalanobis cost over every measured component) are the
-        unexplained ones, and the farthest of them (from every component) seed one
-        component of weight 1 each, the row itself as the state (`default_birth_cov` where
-        the row does not measure a component). Those rows are already explained by their
-        birth and are left out of the update.
+        With identified rows, every connected vehicle that names a row and has no component
+        of its label is born on that row: it may have connected without a row, or lost its
+        components to pruning in an outage. With anonymous rows, the fusion centre knows how
+        many vehicles connected, not which rows are theirs: the rows left over by an optimal
+        assignment of the rows to the predicted components of weight ≥ 0.5 (squared
+        Mahalanobis cost over every measured component) are the unexplained ones, and the
+        farthest of them (from every component) seed one component of weight 1 each, the
+        row itself as the state (`default_birth_cov` where the row does not measure a
+        component). Those rows are already explained by their birth and are left out of the update.
         """
-        known = self._present if self.mixture is not None else self.setup.vehicle_prior.ids
-        new = frame.vehicles[~np.isin(frame.vehicles, known)]
-        n_new = new.size
-        if n_new == 0 or z.shape[0] == 0:
-            return Mixture.empty(self.dx), np.zeros(0, dtype=np.int64)
-        if self.labelled:   # the rows that name a vehicle that just connected
-            rows = np.flatnonzero(np.isin(subject, new))
+        if self.labelled:
+            # the rows that name a connected vehicle without a component of its label: one
+            # that connected without a row (it is born on its first), or whose components
+            # were pruned in an outage — not only those that connected this step
+            rows = np.flatnonzero(np.isin(subject, frame.vehicles) & ~np.isin(subject, predicted.labels))
             rows = rows[np.unique(subject[rows], return_index=True)[1]]   # one row per vehicle
             return self._born_on(rows, z, R, subject[rows]), rows
+        known = self._present if self.mixture is not None else self.setup.vehicle_prior.ids
+        n_new = np.count_nonzero(~np.isin(frame.vehicles, known))
+        if n_new == 0 or z.shape[0] == 0:
+            return Mixture.empty(self.dx), np.zeros(0, dtype=np.int64)
         strong = predicted.take(predicted.log_w >= np.log(0.5))
         S = symmetrize((self.H @ strong.cov @ self.H.T)[None] + R[:, None])           # (M, J, dz, dz)
         r = z[:, None, :] - (strong.mean @ self.H.T)[None]
