@@ -7,9 +7,9 @@ cost (≈ 1 µs per matrix; a city step of `icp-da-lc` converts some 10⁵). The
 the textbook arithmetic of each matrix in place:
 
 - Cholesky A = L Lᵀ (Golub & Van Loan, Alg. 4.2.1, the column form), reading the
-  lower triangle of A as LAPACK's potrf('L') does; a pivot that is not > 0 (or NaN)
-  marks the matrix as not positive definite (`ok[i] = False`), where `np.linalg.cholesky`
-  raises;
+  lower triangle of A as LAPACK's potrf('L') does; a pivot ≤ 0 marks the matrix as not
+  positive definite (`ok[i] = False`), where `np.linalg.cholesky` raises, and a NaN
+  pivot gives NaN results without failing, as `np.linalg.cholesky` does;
 - L⁻¹ by forward substitution, A⁻¹ = L⁻ᵀ L⁻¹ (exactly symmetric: each entry is computed
   once and written to both triangles);
 - A⁻¹ b by forward and back substitution;
@@ -35,14 +35,14 @@ _LOG_2PI = math.log(2.0 * math.pi)
 
 @njit(cache=True, nogil=True)
 def cholesky_into(A: np.ndarray, L: np.ndarray) -> bool:
-    """L (d, d) ← the lower Cholesky factor of A (its lower triangle read); False where A
-    is not positive definite (L then partly written)."""
+    """L (d, d) ← the lower Cholesky factor of A (its lower triangle read); False where a
+    pivot is ≤ 0 (L then partly written). NaN entries give NaN factors, not False."""
     d = A.shape[0]
     for j in range(d):
         s = A[j, j]
         for k in range(j):
             s -= L[j, k] * L[j, k]
-        if not s > 0.0:                       # also NaN
+        if s <= 0.0:                          # NaN passes on, as in LAPACK's potrf here
             return False
         ljj = math.sqrt(s)
         L[j, j] = ljj

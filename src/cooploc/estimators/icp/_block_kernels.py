@@ -4,10 +4,11 @@ copies an agent did not get, in place, without the (n, F, r) temporaries that Nu
 fancy indexing and boolean masks make (fresh memory is slow to touch on a loaded
 machine). Plain copies and zeros: the values are bitwise those of the NumPy form.
 
-Also the BPA-L's messages (19)/(21) row by row (`relative_messages`, one Cholesky of
-A + R⁻¹ per row instead of three LAPACK solves) and a positive-definiteness test
-(`positive_definite`): the same formulas as `gaussian_bp.relative_message`'s NumPy
-form, equal to round-off (tests/test_icp.py).
+Also for the BPA-L: its messages (19)/(21) row by row (`relative_messages`, one
+Cholesky factor of A + R⁻¹ per row instead of three LAPACK solves; the formulas of
+`gaussian_bp.relative_message`, equal to round-off, tests/test_icp.py), a
+positive-definiteness test (`positive_definite`) and `np.add.at` over rows
+(`add_rows_at`: the same additions in the same order, bitwise).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import numpy as np
 
 from cooploc._gaussian_kernels import cholesky_into, cholesky_solve_into
 
-__all__ = ["copy_copies", "positive_definite", "relative_messages", "reset_missing"]
+__all__ = ["add_rows_at", "copy_copies", "positive_definite", "relative_messages", "reset_missing"]
 
 
 @numba.njit(cache=True)
@@ -106,3 +107,14 @@ def positive_definite(A: np.ndarray) -> np.ndarray:
     for r in range(m):
         ok[r] = cholesky_into(A[r], L)
     return ok
+
+
+@numba.njit(cache=True, nogil=True)
+def add_rows_at(target: np.ndarray, index: np.ndarray, values: np.ndarray) -> None:
+    """target[index[m]] += values[m] for m in order, in place: `np.add.at` on (n, r) and
+    (m, r) rows, with the same additions in the same order (bitwise its result)."""
+    r = target.shape[1]
+    for m in range(index.size):
+        i = index[m]
+        for c in range(r):
+            target[i, c] += values[m, c]

@@ -217,6 +217,15 @@ def _psd(M: FloatArray) -> FloatArray:
     return S
 
 
+def _trace(M: FloatArray) -> FloatArray:
+    """tr M over the last two axes, summed in order like `np.trace` (bitwise equal), as d
+    whole-array additions instead of a reduction over each short diagonal."""
+    out = M[..., 0, 0].copy()
+    for j in range(1, M.shape[-1]):
+        out += M[..., j, j]
+    return out
+
+
 def _solve_positive(A: FloatArray, b: FloatArray) -> FloatArray:
     """A⁻¹ b of symmetric A (m, d, d) and b (m, d): by Cholesky (compiled), by LAPACK's
     LU where round-off left an A indefinite."""
@@ -278,7 +287,7 @@ class _FeatureCopies:
 
     def known(self) -> np.ndarray:
         """(n, F) which copies hold any information."""
-        return np.trace(self.Lam, axis1=-2, axis2=-1) > 0
+        return _trace(self.Lam) > 0
 
 
 @register_estimator
@@ -392,6 +401,8 @@ class ICP:
         if rows.size == 0:
             self._share_tracks(network, np.zeros(self.features.block.shape[:2], dtype=bool))
             return prior, 0
+        from cooploc.estimators.icp._block_kernels import add_rows_at  # numba, on use
+
         p = self.params
         n, F, d = agents.size, self.features.ids.size, self.d
         Lam0, eta0 = to_information(prior)                               # b_i^(0)
@@ -423,11 +434,9 @@ class ICP:
             b = eta_v[agent] - to_vehicle[1]
             to_feature = relative_message(B, b, z, R, R_inv)
             # (20) Σ_i over the vehicles sensing k, by consensus at every agent
-            local_Lam = np.zeros((ma.size, d, d))
-            local_eta = np.zeros((ma.size, d))
-            np.add.at(local_Lam, member, to_feature[0])
-            np.add.at(local_eta, member, to_feature[1])
-            total = feature_groups.sum_members(np.concatenate([local_Lam.reshape(-1, d * d), local_eta], 1))
+            local = np.zeros((ma.size, d * d + d))                         # [Λ | η] of each copy
+            add_rows_at(local, member, np.concatenate([to_feature[0].reshape(m, d * d), to_feature[1]], 1))
+            total = feature_groups.sum_members(local)
             feat_Lam = feat_Lam0 + total[:, : d * d].reshape(-1, d, d)
             feat_eta = feat_eta0 + total[:, d * d:]
             if iterations == 1:
@@ -439,8 +448,8 @@ class ICP:
             # (22) b_i = b_i^(0) Π_k m_{k→i}
             Lam_v = Lam0.copy()
             eta_v = eta0.copy()
-            np.add.at(Lam_v, agent, to_vehicle[0])
-            np.add.at(eta_v, agent, to_vehicle[1])
+            add_rows_at(Lam_v.reshape(n, d * d), agent, to_vehicle[0].reshape(m, d * d))
+            add_rows_at(eta_v, agent, to_vehicle[1])
             now_v = _solve_positive(Lam_v, eta_v)
             now_f = self._feature_means(feat_Lam, feat_eta)
             moved = self._moved(now_v, last_v)
@@ -490,7 +499,7 @@ class ICP:
 
     def _feature_means(self, Lam: FloatArray, eta: FloatArray) -> FloatArray:
         """Means of the copies that hold information (zeros elsewhere)."""
-        known = np.trace(Lam, axis1=-2, axis2=-1) > 0
+        known = _trace(Lam) > 0
         out = np.zeros(eta.shape)
         if known.any():
             out[known] = _solve_positive(Lam[known] + 1e-12 * np.eye(self.d), eta[known])
@@ -501,7 +510,7 @@ class ICP:
         if copies.ids.size == 0 or copies.agents.size == 0:
             info["feature_source"] = {}
             return StateSet.empty(self.d)
-        strength = np.trace(copies.Lam, axis1=-2, axis2=-1)               # (n, F)
+        strength = _trace(copies.Lam)                                      # (n, F)
         best = strength.argmax(axis=0)
         cols = np.arange(copies.ids.size)
         Lam, eta = copies.Lam[best, cols], copies.eta[best, cols]
