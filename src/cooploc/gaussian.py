@@ -53,6 +53,15 @@ so that the regression never straddles the ±π cut (Crouse 2015). Sigma points:
 `"cubature"` (2d points ± sqrt(d) columns of a Cholesky factor, equal weights). Both
 integrate polynomials of degree 3 exactly, so an affine h is recovered with Ω = 0.
 
+Small-matrix solves. `to_information`, `from_information`, `gaussian_logpdf` and
+`spd_solve` factor each matrix of a stack by Cholesky in compiled loops
+(`cooploc._gaussian_kernels`, numba, imported on first use) rather than one LAPACK call
+per matrix, whose overhead dominated on stacks of 2 × 2 and 4 × 4 matrices (≈ 1 µs
+per matrix against ≈ 0.1 µs). Same formulas; results equal those of `np.linalg` to
+round-off (κ ε relative; tests/test_gaussian_kernels.py), Λ and P exactly symmetric; a
+matrix that is not positive definite raises `LinAlgError` as `np.linalg.cholesky` does,
+and NaN propagates as there.
+
 Complexity: O(n (dx³ + dz³)) per call; SLR O(n (S d dz + d³)) with S = 2d (+1) points.
 """
 
