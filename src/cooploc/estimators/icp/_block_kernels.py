@@ -8,7 +8,10 @@ Also for the BPA-L: its messages (19)/(21) row by row (`relative_messages`, one
 Cholesky factor of A + R⁻¹ per row instead of three LAPACK solves; the formulas of
 `gaussian_bp.relative_message`, equal to round-off, tests/test_icp.py), a
 positive-definiteness test (`positive_definite`) and `np.add.at` over rows
-(`add_rows_at`: the same additions in the same order, bitwise).
+(`add_rows_at`: the same additions in the same order, bitwise). The message kernel
+calls the Cholesky loops of `cooploc._gaussian_kernels`; numba's on-disk cache tracks
+this file only, so after changing those loops delete this module's cache files
+(`__pycache__/_block_kernels.*.nbi`, `.nbc`).
 """
 
 from __future__ import annotations
