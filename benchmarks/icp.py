@@ -2,7 +2,7 @@
 
     python benchmarks/icp.py                      # results in benchmarks/results/icp.json
     python benchmarks/icp.py --quick --out icp.json
-    python benchmarks/icp.py --only city          # one section: paper, city, curve, grid-pf
+    python benchmarks/icp.py --only city          # one section: paper, city, city-cut, curve, grid-pf
 
 Sections (keys of the JSON):
 
@@ -16,6 +16,13 @@ Sections (keys of the JSON):
   (32 steps; issue 17 asks ≤ 0.1 s per step on 2 cores): wall and process CPU seconds
   per step, with `gnss-kf` timed in the same run as the reference (`ratio_to_gnss_kf`),
   since the machine may be loaded.
+- `city_cut` (city-cut): `icp-da-lc` and `icp` on the Berlin city cut
+  (`sumo-berlin-city-tlr`, 300 s of warm-up: ≈ 1230 vehicles; 7.5 s recorded, 11
+  steps; issue 17 asks ≤ 1 s per step on one thread): wall and process CPU seconds per
+  step (best of `--repeats` passes, after one pass that compiles the kernels), the
+  vehicles per step, and the process's peak RSS so far. Run it with
+  `OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1`. The first build of the cut's traffic
+  runs SUMO for minutes; it is cached.
 - `vehicle_curve` (curve): `icp-da-lc` seconds (wall and CPU) per step against the
   number of vehicles (100 … 5000), with the fitted growth exponents (slope of log time
   on log vehicles) and the `gnss-kf` reference at each size.
@@ -114,6 +121,25 @@ def city(results: dict, quick: bool, repeats: int) -> None:
     results["city_200"] = entry
 
 
+def city_cut(results: dict, quick: bool, repeats: int) -> None:
+    """icp-da-lc and icp on the Berlin city cut (module doc, `city_cut`)."""
+    import resource
+
+    overrides = {"warmup": 300.0, "duration": 1.5 if quick else 7.5}
+    rec = recording("sumo-berlin-city-tlr", 1, overrides)
+    vehicles = [f.vehicles.size for f in rec.frames]
+    entry: dict = {"steps": len(rec.frames), "vehicles_min": min(vehicles), "vehicles_max": max(vehicles),
+                   "load_average": _load()}
+    for name in ("icp-da-lc", "icp"):
+        run_steps(new_estimator(name, rec), rec.frames[:2])              # compile the kernels
+        seconds, cpu = _seconds_per_step(name, rec, repeats)
+        entry[name] = {"seconds_per_step": seconds, "cpu_seconds_per_step": cpu}
+        print(f"{name:>10} on the city cut ({max(vehicles)} vehicles): {seconds:.3f} s/step, "
+              f"{cpu:.3f} CPU s/step")
+    entry["peak_rss_bytes"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    results["city_cut"] = entry
+
+
 def curve(results: dict, quick: bool, repeats: int) -> None:
     """icp-da-lc against the number of vehicles (module doc, `vehicle_curve`)."""
     sizes = (20, 40) if quick else (100, 200, 400, 1000, 2000, 5000)
@@ -156,7 +182,7 @@ def _load() -> float | None:
     return environment()["load_average"]
 
 
-SECTIONS = {"paper": paper, "city": city, "curve": curve, "grid-pf": grid_pf}
+SECTIONS = {"paper": paper, "city": city, "city-cut": city_cut, "curve": curve, "grid-pf": grid_pf}
 
 
 def main(argv: list[str] | None = None) -> int:

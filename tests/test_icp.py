@@ -101,6 +101,74 @@ def test_relative_message_matches_covariance_form(rng: np.random.Generator) -> N
     assert np.abs(Lam0).max() == 0 and np.abs(eta0).max() == 0
 
 
+def test_relative_message_compiled_matches_the_lapack_form(rng: np.random.Generator) -> None:
+    # the compiled rows (one Cholesky of A + R⁻¹) against the three LAPACK solves they
+    # replace, on PSD A from zero through rank-deficient to stiff (κ up to 1e10)
+    from cooploc.estimators.icp.gaussian_bp import _relative_message_lapack
+
+    d, m = 4, 400
+    half = rng.normal(size=(m, d, d)) * 10.0 ** rng.uniform(-3, 3, (m, 1, d))
+    rank = rng.integers(0, d + 1, m)                        # rank 0 (uniform) … d
+    half *= np.arange(d)[None, None, :] < rank[:, None, None]          # columns beyond the rank
+    A = half @ half.transpose(0, 2, 1)
+    R = np.repeat(np.diag([0.04, 0.04, 0.01, 0.01])[None], m, 0) * rng.uniform(0.5, 50.0, (m, 1, 1))
+    a = rng.normal(size=(m, d)) * 10.0
+    z = rng.normal(size=(m, d))
+    Lam, eta = relative_message(A, a, z, R)
+    ref_Lam, ref_eta = _relative_message_lapack(A, a, z, R)
+    # round-off of either form: ε times κ(A + R⁻¹) times the size of the terms
+    scale = np.abs(A).max(axis=(1, 2)) + 1.0 / R[:, -1, -1]
+    tol = 1e-14 * np.linalg.cond(A + np.linalg.inv(R)) * scale
+    assert (np.abs(Lam - ref_Lam).max(axis=(1, 2)) <= tol).all()
+    assert (np.abs(eta - ref_eta).max(axis=1) <= tol * (np.abs(a).max(axis=1) + np.abs(z).max(axis=1))).all()
+    assert (Lam == Lam.transpose(0, 2, 1)).all()
+
+
+def test_relative_message_falls_back_where_cholesky_fails() -> None:
+    # A with a negative eigenvalue beyond R⁻¹'s: A + R⁻¹ is indefinite, LU still solves it
+    from cooploc.estimators.icp.gaussian_bp import _relative_message_lapack
+
+    A = np.diag([-200.0, 1.0, 1.0, 1.0])[None]
+    R = np.eye(4)[None] * 0.01
+    a, z = np.ones((1, 4)), np.full((1, 4), 0.5)
+    Lam, eta = relative_message(A, a, z, R)
+    ref_Lam, ref_eta = _relative_message_lapack(A, a, z, R)
+    np.testing.assert_array_equal(Lam, ref_Lam)
+    np.testing.assert_array_equal(eta, ref_eta)
+
+
+def test_psd_keeps_definite_and_clips_the_rest(rng: np.random.Generator) -> None:
+    from cooploc.estimators.icp.gaussian_bp import _psd
+
+    d, m = 4, 200
+    half = rng.normal(size=(m, d, d))
+    M = half @ half.transpose(0, 2, 1)
+    M[: m // 2] -= 3.0 * np.eye(d)                           # some indefinite
+    M[:10] = 0.0                                             # uniform copies
+    w, V = np.linalg.eigh(M)
+    clipped = (V * np.maximum(w, 0.0)[..., None, :]) @ V.transpose(0, 2, 1)   # the definition
+    out = _psd(M)
+    np.testing.assert_allclose(out, clipped, rtol=0, atol=1e-12 * np.abs(M).max())
+    definite = w[:, 0] > 1e-6 * w[:, -1]
+    np.testing.assert_array_equal(out[definite], M[definite])   # kept as they were
+    assert (np.linalg.eigvalsh(out)[:, 0] >= -1e-12 * np.abs(M).max()).all()
+
+
+def test_row_sums_and_traces_are_bitwise_numpy(rng: np.random.Generator) -> None:
+    from cooploc.estimators.icp._block_kernels import add_rows_at
+    from cooploc.estimators.icp.gaussian_bp import _trace
+
+    values = rng.normal(size=(500, 20)) * 10.0 ** rng.uniform(-8, 8, (500, 1))
+    index = rng.integers(0, 37, 500)
+    ref = rng.normal(size=(37, 20))
+    out = ref.copy()
+    np.add.at(ref, index, values)
+    add_rows_at(out, index, values)
+    np.testing.assert_array_equal(out, ref)
+    M = rng.normal(size=(30, 7, 4, 4)) * 10.0 ** rng.uniform(-8, 8, (30, 7, 4, 4))
+    np.testing.assert_array_equal(_trace(M), np.trace(M, axis1=-2, axis2=-1))
+
+
 def _per_run_rmse(name: str, runs: int, preset: str, **est_params) -> np.ndarray:
     out = []
     for r in range(runs):

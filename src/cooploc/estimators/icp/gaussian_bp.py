@@ -110,7 +110,14 @@ from cooploc.consensus import GroupConsensus, flood
 from cooploc.errors import ConfigError
 from cooploc.estimators.base import checked_states
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
-from cooploc.gaussian import Gaussians, from_information, kf_predict, symmetrize, to_information
+from cooploc.gaussian import (
+    Gaussians,
+    from_information,
+    kf_predict,
+    spd_inverse_and_product,
+    symmetrize,
+    to_information,
+)
 from cooploc.network import Network
 from cooploc.params import Params, param
 from cooploc.registry import register_estimator
@@ -158,14 +165,35 @@ class ICPParams(Params):
     share_hops: int = param(1, ge=1)
 
 
-def relative_message(A: FloatArray, a: FloatArray, z: FloatArray, R: FloatArray
-                     ) -> tuple[FloatArray, FloatArray]:
+def relative_message(A: FloatArray, a: FloatArray, z: FloatArray, R: FloatArray,
+                     R_inv: FloatArray | None = None) -> tuple[FloatArray, FloatArray]:
     """Information-form message about y = x + z + n, n ~ N(0, R), from a belief (A, a) of x.
 
     Λ = (R + A⁻¹)⁻¹ = A − A (A + R⁻¹)⁻¹ A and η = (I + A R)⁻¹ a + Λ z; both are
     defined for a singular (even zero) A, where the message is uniform. Batched over
-    the leading dimension: A, R (m, d, d), a, z (m, d).
+    the leading dimension: A, R (m, d, d), a, z (m, d); `R_inv` (m, d, d) is R⁻¹ if the
+    caller has it. A must be symmetric positive semi-definite.
+
+    Computed row by row with one Cholesky factor of C = A + R⁻¹ (compiled,
+    `_block_kernels.relative_messages`): (I + A R)⁻¹ = R⁻¹ C⁻¹ since I + A R = C R.
+    Rows where round-off left C indefinite take the LAPACK solves of the three factors.
     """
+    from cooploc.estimators.icp._block_kernels import relative_messages  # numba, on use
+
+    if R_inv is None:
+        R_inv = spd_inverse_and_product(R, np.zeros(R.shape[:-1]))[0]
+    A, a = np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(a, dtype=float)
+    Lam, eta, ok = relative_messages(A, a, np.ascontiguousarray(z, dtype=float),
+                                     np.ascontiguousarray(R_inv, dtype=float))
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        Lam[bad], eta[bad] = _relative_message_lapack(A[bad], a[bad], z[bad], R[bad])
+    return Lam, eta
+
+
+def _relative_message_lapack(A: FloatArray, a: FloatArray, z: FloatArray, R: FloatArray
+                             ) -> tuple[FloatArray, FloatArray]:
+    """`relative_message` by LAPACK solves (LU), for C = A + R⁻¹ that Cholesky rejects."""
     d = A.shape[-1]
     R_inv = np.linalg.solve(R, np.broadcast_to(np.eye(d), R.shape))
     Lam = symmetrize(A - A @ np.linalg.solve(A + R_inv, A))
@@ -174,9 +202,41 @@ def relative_message(A: FloatArray, a: FloatArray, z: FloatArray, R: FloatArray
 
 
 def _psd(M: FloatArray) -> FloatArray:
-    """Nearest PSD matrices (eigenvalues clipped at 0): consensus leaves small errors."""
-    w, V = np.linalg.eigh(symmetrize(M))
-    return (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
+    """Nearest PSD matrices (eigenvalues clipped at 0): consensus leaves small errors.
+
+    A symmetrised M that has a Cholesky factor is kept as it is (clipping would change
+    it by round-off only); the others are clipped through their eigendecomposition.
+    """
+    from cooploc.estimators.icp._block_kernels import positive_definite  # numba, on use
+
+    S = np.ascontiguousarray(symmetrize(M))
+    clip = np.flatnonzero(~positive_definite(S))
+    if clip.size:
+        w, V = np.linalg.eigh(S[clip])
+        S[clip] = (V * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(V, -1, -2)
+    return S
+
+
+def _trace(M: FloatArray) -> FloatArray:
+    """tr M over the last two axes, summed in order like `np.trace` (bitwise equal), as d
+    whole-array additions instead of a reduction over each short diagonal."""
+    out = M[..., 0, 0].copy()
+    for j in range(1, M.shape[-1]):
+        out += M[..., j, j]
+    return out
+
+
+def _solve_positive(A: FloatArray, b: FloatArray) -> FloatArray:
+    """A⁻¹ b of symmetric A (m, d, d) and b (m, d): by Cholesky (compiled), by LAPACK's
+    LU where round-off left an A indefinite."""
+    from cooploc._gaussian_kernels import solve_stack  # numba, on use
+
+    A, b = np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(b, dtype=float)
+    x, ok = solve_stack(A, b)
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        x[bad] = np.linalg.solve(A[bad], b[bad][..., None])[..., 0]
+    return x
 
 
 class _FeatureCopies:
@@ -227,7 +287,7 @@ class _FeatureCopies:
 
     def known(self) -> np.ndarray:
         """(n, F) which copies hold any information."""
-        return np.trace(self.Lam, axis1=-2, axis2=-1) > 0
+        return _trace(self.Lam) > 0
 
 
 @register_estimator
@@ -341,12 +401,15 @@ class ICP:
         if rows.size == 0:
             self._share_tracks(network, np.zeros(self.features.block.shape[:2], dtype=bool))
             return prior, 0
+        from cooploc.estimators.icp._block_kernels import add_rows_at  # numba, on use
+
         p = self.params
         n, F, d = agents.size, self.features.ids.size, self.d
         Lam0, eta0 = to_information(prior)                               # b_i^(0)
         agent = np.searchsorted(agents, v2f.sensor[rows])
         slot = np.searchsorted(self.features.ids, slot_ids[rows])
         z, R = v2f.z[rows], v2f.cov[rows]
+        R_inv = spd_inverse_and_product(R, z)[0]                          # R⁻¹ of (19) and (21)
         senses = np.zeros((n, F), dtype=bool)       # the consensus group of each feature
         senses[agent, slot] = True
         feature_groups = GroupConsensus(network, senses, p.consensus_iterations)
@@ -369,13 +432,11 @@ class ICP:
             # (19) vehicle → feature, from i's extrinsic belief
             B = Lam_v[agent] - to_vehicle[0]
             b = eta_v[agent] - to_vehicle[1]
-            to_feature = relative_message(B, b, z, R)
+            to_feature = relative_message(B, b, z, R, R_inv)
             # (20) Σ_i over the vehicles sensing k, by consensus at every agent
-            local_Lam = np.zeros((ma.size, d, d))
-            local_eta = np.zeros((ma.size, d))
-            np.add.at(local_Lam, member, to_feature[0])
-            np.add.at(local_eta, member, to_feature[1])
-            total = feature_groups.sum_members(np.concatenate([local_Lam.reshape(-1, d * d), local_eta], 1))
+            local = np.zeros((ma.size, d * d + d))                         # [Λ | η] of each copy
+            add_rows_at(local, member, np.concatenate([to_feature[0].reshape(m, d * d), to_feature[1]], 1))
+            total = feature_groups.sum_members(local)
             feat_Lam = feat_Lam0 + total[:, : d * d].reshape(-1, d, d)
             feat_eta = feat_eta0 + total[:, d * d:]
             if iterations == 1:
@@ -383,13 +444,13 @@ class ICP:
             # (21) feature → vehicle, from the agent's copy of the feature's extrinsic belief
             A = _psd(feat_Lam[member] - to_feature[0])
             a = feat_eta[member] - to_feature[1]
-            to_vehicle = relative_message(A, a, -z, R)
+            to_vehicle = relative_message(A, a, -z, R, R_inv)
             # (22) b_i = b_i^(0) Π_k m_{k→i}
             Lam_v = Lam0.copy()
             eta_v = eta0.copy()
-            np.add.at(Lam_v, agent, to_vehicle[0])
-            np.add.at(eta_v, agent, to_vehicle[1])
-            now_v = np.linalg.solve(Lam_v, eta_v[..., None])[..., 0]
+            add_rows_at(Lam_v.reshape(n, d * d), agent, to_vehicle[0].reshape(m, d * d))
+            add_rows_at(eta_v, agent, to_vehicle[1])
+            now_v = _solve_positive(Lam_v, eta_v)
             now_f = self._feature_means(feat_Lam, feat_eta)
             moved = self._moved(now_v, last_v)
             np.logical_or.at(moved, ma, self._moved(now_f, last_f))    # an agent's copies moved
@@ -438,10 +499,10 @@ class ICP:
 
     def _feature_means(self, Lam: FloatArray, eta: FloatArray) -> FloatArray:
         """Means of the copies that hold information (zeros elsewhere)."""
-        known = np.trace(Lam, axis1=-2, axis2=-1) > 0
+        known = _trace(Lam) > 0
         out = np.zeros(eta.shape)
         if known.any():
-            out[known] = np.linalg.solve(Lam[known] + 1e-12 * np.eye(self.d), eta[known][..., None])[..., 0]
+            out[known] = _solve_positive(Lam[known] + 1e-12 * np.eye(self.d), eta[known])
         return out
 
     def _feature_estimates(self, info: dict) -> StateSet:
@@ -449,7 +510,7 @@ class ICP:
         if copies.ids.size == 0 or copies.agents.size == 0:
             info["feature_source"] = {}
             return StateSet.empty(self.d)
-        strength = np.trace(copies.Lam, axis1=-2, axis2=-1)               # (n, F)
+        strength = _trace(copies.Lam)                                      # (n, F)
         best = strength.argmax(axis=0)
         cols = np.arange(copies.ids.size)
         Lam, eta = copies.Lam[best, cols], copies.eta[best, cols]

@@ -78,7 +78,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cooploc.gaussian import Gaussians, from_information, gaussian_logpdf, to_information
+from cooploc.gaussian import (
+    Gaussians,
+    from_information,
+    gaussian_logpdf,
+    spd_inverse_and_product,
+    to_information,
+)
 from cooploc.particles import log_sum_exp
 from cooploc.types import FloatArray, IntArray
 
@@ -173,7 +179,7 @@ def register_vehicles(prior: Gaussians, z: FloatArray, R: FloatArray, mask: np.n
     mf = matched[ma, mw]
     row_Lam = np.zeros((n, W, d, d))
     row_eta = np.zeros((n, W, d))
-    row_Lam[ma, mw] = np.linalg.solve(R[ma, mw] + tracks.cov[ma, mf], np.eye(d))
+    row_Lam[ma, mw] = spd_inverse_and_product(R[ma, mw] + tracks.cov[ma, mf], z[ma, mw])[0]  # (R + P_k)⁻¹
     Lam0, eta0 = to_information(prior)
     row_eta[ma, mw] = np.einsum("mij,mj->mi", row_Lam[ma, mw], tracks.mean[ma, mf] - z[ma, mw])
     Lam = Lam0[agent][:, None] + row_Lam[agent].sum(axis=1, keepdims=True) - row_Lam[agent]
