@@ -242,14 +242,12 @@ def _observed_block_update(P: FloatArray, E: IntArray, J: FloatArray, nonzero: I
     u = D - r
     # the regression of u costs O(u r²) and a few scattered passes over the D × D matrix
     # (fancy indexing, ≈ GATHER_COST operations an entry); where u is small, inverting
-    # the whole state (E = all coordinates, J padded with zeros) is cheaper
+    # the whole state (y = θ, J zero where no row observes) is cheaper
     whole = 2 * D**3 <= 2 * r**3 + 4 * u * r * r + 2 * u * u * r + GATHER_COST * D * D
-    if whole and r < D:   # J and a on every coordinate, zero where unobserved
-        values = J.ravel()[nonzero]
-        nonzero = E[nonzero // r] * D + E[nonzero % r]
-        J, a_full = np.zeros(D * D), np.zeros(D)
-        J[nonzero], a_full[E] = values, a
-        J, E, a, r = J.reshape(D, D), np.arange(D), a_full, D
+    i, j = np.divmod(nonzero, r)
+    values = J.ravel()[nonzero]
+    if whole:   # y = θ: J's nonzeros and a placed on every coordinate (zero where unobserved)
+        i, j, a = E[i], E[j], np.bincount(E, a, minlength=D)
     G = P if whole else P[np.ix_(E, E)]
     G_inv = spd_inverse_lower(G.T)                         # symmetric: Gᵀ is G, Fortran-ordered
     if G_inv is None:
@@ -259,8 +257,7 @@ def _observed_block_update(P: FloatArray, E: IntArray, J: FloatArray, nonzero: I
     else:
         G_inv = _full(G_inv)
         info = np.asfortranarray(G_inv)                    # a copy: G⁻¹ is needed below
-    i, j = np.divmod(nonzero, r)
-    info[i, j] += J.ravel()[nonzero]                       # G⁻¹ + J (its upper triangle unread)
+    info[i, j] += values                                   # G⁻¹ + J (its upper triangle unread)
     post_y = spd_inverse_lower(info, overwrite=True)
     if post_y is None:
         return None
