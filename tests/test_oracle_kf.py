@@ -26,7 +26,15 @@ from cooploc.estimators.oracle_kf import OracleKFParams
 from cooploc.sensors import Odometry
 from cooploc.testing import CheckSkipped, sumo_traffic, with_empty_frames
 from cooploc.types import AssociationTruth, Batch, Estimate, Frame, Recording
-from helpers import froehle_recording, position_errors, preset_recording, run_estimator, with_traffic
+from helpers import (
+    ROOT,
+    froehle_recording,
+    load_script,
+    position_errors,
+    preset_recording,
+    run_estimator,
+    with_traffic,
+)
 
 # Dense conditioning of a ≤ 64-dimensional joint Gaussian vs a recursive Joseph-form
 # filter: both exact in exact arithmetic; the joint covariance has condition number
@@ -543,3 +551,19 @@ def test_observed_block_update_equals_the_information_update(seed: int, observed
     np.testing.assert_allclose(post, expected, rtol=0, atol=LINALG_RTOL * scale)
     np.testing.assert_array_equal(post, post.T)
     np.testing.assert_allclose(shift, expected @ aE, rtol=0, atol=LINALG_RTOL * np.abs(expected @ aE).max())
+
+
+def test_benchmark_times_the_component_form_against_a_baseline_revision() -> None:
+    # benchmarks/oracle_kf.py --baseline REV: the committed component form (HEAD) against the
+    # one imported now; on a paper preset both are the same filter to round-off
+    import shutil
+    import subprocess
+
+    if shutil.which("git") is None or subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True,
+                                                     cwd=ROOT).returncode:
+        pytest.skip("no git checkout to take the baseline from")
+    module = load_script("benchmarks/oracle_kf.py")
+    out = module.time_baseline("froehle2018", 1, "HEAD", 2, {"n_steps": 6})
+    assert out["steps"] == 6 and len(out["seconds"]["baseline"]) == len(out["seconds"]["current"]) == 2
+    assert out["baseline_steps_per_second"] > 0 and out["current_steps_per_second"] > 0
+    assert out["max_rel_difference"] < FORMS_RTOL
