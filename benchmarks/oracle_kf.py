@@ -4,6 +4,8 @@
     python benchmarks/oracle_kf.py --quick --out b.json   # tiny sizes, to check the script
     python benchmarks/oracle_kf.py --presets sumo-braunschweig-tlr --dense-steps 100
     python benchmarks/oracle_kf.py --presets --tiles 0 --odometry sumo-grid-tlr --duration 60
+    python benchmarks/oracle_kf.py --presets sumo-braunschweig-tlr --dense-steps 0 --tiles 0 \
+        --odometry --baseline fa406aa                     # against the component form of a commit
 
 Measured in one process, on the same recordings (time inside `step` only):
 
@@ -26,6 +28,12 @@ Measured in one process, on the same recordings (time inside `step` only):
    steps per second of each (the fastest repeat) and their ratio, which stochastic
    cloning costs; the largest difference between the two forms with odometry over the
    first `--dense-steps` steps.
+
+4. Against a baseline (`--baseline REV`, per preset): the component form of git revision
+   REV (its `oracle_kf/components.py`, loaded from `git show` beside the current one)
+   and the current one, run alternately `--repeats` times on the same recording in one
+   process: steps per second of each (the fastest repeat, wall clock and CPU time),
+   their ratio, and the largest difference between the two (relative, as in 1.).
 
 Every pass runs with `--threads` BLAS threads (default 1, `backends.limit_threads`), as
 the workers of `cooploc run` run an estimator: on a shared machine OpenBLAS threads that
@@ -151,6 +159,61 @@ def time_odometry(name: str, seed: int, dense_steps: int, repeats: int,
     return out
 
 
+# -- against a baseline revision ---------------------------------------------------
+
+
+def baseline_filter(rev: str):
+    """The `ComponentFilter` class of `oracle_kf/components.py` at git revision `rev`."""
+    import subprocess
+    import types
+
+    path = "src/cooploc/estimators/oracle_kf/components.py"
+    source = subprocess.run(["git", "show", f"{rev}:{path}"], capture_output=True, text=True, check=True,
+                            cwd=Path(__file__).resolve().parent.parent).stdout
+    module = types.ModuleType(f"oracle_kf_components_{rev}")
+    sys.modules[module.__name__] = module   # dataclasses look their module up
+    exec(compile(source, f"{rev}:{path}", "exec"), module.__dict__)
+    return module.ComponentFilter
+
+
+def time_baseline(name: str, seed: int, rev: str, repeats: int, overrides: dict | None = None) -> dict:
+    """Steps per second of the component form at `rev` and now, alternately on one recording."""
+    import time
+
+    rec = recording(name, seed, overrides)
+    Baseline = baseline_filter(rev)
+
+    def make(which: str):
+        est = new_estimator("oracle-kf", rec)
+        if which == "baseline":
+            f = est._filter
+            est._filter = Baseline(f.setup, f.params, f.truth)
+        return est
+
+    for which in ("baseline", "current"):
+        run_steps(make(which), rec.frames[:2])
+    wall: dict[str, list[float]] = {"baseline": [], "current": []}
+    cpu: dict[str, list[float]] = {"baseline": [], "current": []}
+    estimates = {}
+    for r in range(repeats):   # alternate, starting with each in turn, so that load hits both alike
+        for which in (("baseline", "current") if r % 2 == 0 else ("current", "baseline")):
+            start = time.process_time()
+            seconds, estimates[which] = run_steps(make(which), rec.frames)
+            cpu[which].append(time.process_time() - start)
+            wall[which].append(seconds)
+    n = len(rec.frames)
+    out = {"steps": n, "baseline": rev, "repeats": repeats, "seconds": wall, "cpu_seconds": cpu,
+           "baseline_steps_per_second": n / min(wall["baseline"]),
+           "current_steps_per_second": n / min(wall["current"]),
+           "speedup": min(wall["baseline"]) / min(wall["current"]),
+           "cpu_speedup": min(cpu["baseline"]) / min(cpu["current"]),
+           **forms_difference(estimates["current"], estimates["baseline"])}
+    print(f"{name} against {rev}: {out['current_steps_per_second']:.1f} steps/s, "
+          f"{rev} {out['baseline_steps_per_second']:.1f} (×{out['speedup']:.2f} wall, "
+          f"×{out['cpu_speedup']:.2f} CPU); max rel difference {out['max_rel_difference']:.2g}")
+    return out
+
+
 # -- the city case ------------------------------------------------------------------
 
 VEHICLE_STRIDE, FEATURE_STRIDE = 100, 10_000   # id shift per tile (crossroad features are 1000 + k)
@@ -222,7 +285,10 @@ def main(argv: list[str] | None = None) -> None:
                         help="SUMO presets timed with and without odometry")
     parser.add_argument("--duration", type=float, default=None,
                         help="seconds of traffic of the odometry runs (default: the preset's)")
-    parser.add_argument("--repeats", type=int, default=3, help="alternate runs of the odometry case")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="alternate runs of the odometry case and of --baseline")
+    parser.add_argument("--baseline", default=None,
+                        help="git revision whose component form the presets are also timed against")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--threads", type=int, default=1, help="BLAS threads (1: as a run's worker)")
     parser.add_argument("--quick", action="store_true", help="tiny sizes: check that the script runs")
@@ -241,6 +307,9 @@ def main(argv: list[str] | None = None) -> None:
     with limit_threads(args.threads):
         for name in presets:
             results["presets"][name] = time_preset(name, args.seed, dense_steps, overrides.get(name))
+            if args.baseline:
+                results["presets"][name]["against_baseline"] = time_baseline(
+                    name, args.seed, args.baseline, repeats, overrides.get(name))
         if odometry:
             results["odometry"] = {name: time_odometry(name, args.seed, dense_steps, repeats,
                                                        odometry_overrides) for name in odometry}

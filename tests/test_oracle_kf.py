@@ -26,7 +26,15 @@ from cooploc.estimators.oracle_kf import OracleKFParams
 from cooploc.sensors import Odometry
 from cooploc.testing import CheckSkipped, sumo_traffic, with_empty_frames
 from cooploc.types import AssociationTruth, Batch, Estimate, Frame, Recording
-from helpers import froehle_recording, position_errors, preset_recording, run_estimator, with_traffic
+from helpers import (
+    ROOT,
+    froehle_recording,
+    load_script,
+    position_errors,
+    preset_recording,
+    run_estimator,
+    with_traffic,
+)
 
 # Dense conditioning of a ≤ 64-dimensional joint Gaussian vs a recursive Joseph-form
 # filter: both exact in exact arithmetic; the joint covariance has condition number
@@ -477,3 +485,85 @@ def test_components_equal_dense_with_odometry_on_gulati(seed: int) -> None:
     # GNSS and odometry, no features: every vehicle alone (kf_update_relative) in the component form
     rec = preset_recording("gulati-2v", [seed, 67], {"n_steps": 30})
     assert forms_difference(rec) < FORMS_RTOL
+
+
+# ----------------------------------------------------------------------------
+# the linear algebra of the component update, against numpy's dense formulas
+# ----------------------------------------------------------------------------
+
+# Condition numbers here are ≲ 1e4 (a random SPD matrix shifted by n I): inverses agree
+# with numpy's LU inverse to ~1e-16 × cond.
+LINALG_RTOL = 1e-11
+
+
+def random_spd(rng: np.random.Generator, n: int) -> np.ndarray:
+    A = rng.standard_normal((n, n))
+    return A @ A.T + n * np.eye(n)
+
+
+@pytest.mark.parametrize("n", [1, 5, 96, 97, 250, 700])   # one leaf, leaves of both sizes, recursion
+def test_spd_inverse_equals_numpy(seed: int, n: int) -> None:
+    from cooploc.estimators.oracle_kf.linalg import spd_inverse_lower
+
+    rng = np.random.default_rng([seed, 95, n])
+    A = random_spd(rng, n)
+    A_garbage = A + np.triu(rng.standard_normal((n, n)), 1)    # the upper triangle is never read
+    expected = np.linalg.inv(A)
+    in_place = np.asfortranarray(A_garbage)
+    for got in (spd_inverse_lower(A_garbage), spd_inverse_lower(in_place, overwrite=True)):
+        np.testing.assert_allclose(np.tril(got), np.tril(expected), rtol=0,
+                                   atol=LINALG_RTOL * np.abs(expected).max())
+
+
+def test_spd_inverse_of_an_indefinite_matrix_is_none(seed: int) -> None:
+    from cooploc.estimators.oracle_kf.linalg import spd_inverse_lower
+
+    A = random_spd(np.random.default_rng([seed, 96]), 200)
+    A[150, 150] = -1.0   # not positive definite: the Cholesky factorisation stops there
+    assert spd_inverse_lower(np.asfortranarray(A)) is None
+
+
+@pytest.mark.parametrize("observed", [1.0, 0.8, 0.4])   # every coordinate, a few missing, most missing
+@pytest.mark.parametrize("gather_cost", [0, 10**9])     # the regression of the rest / the whole inverse
+def test_observed_block_update_equals_the_information_update(seed: int, observed: float,
+                                                             gather_cost: int,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    from cooploc.estimators.oracle_kf import components
+
+    monkeypatch.setattr(components, "GATHER_COST", gather_cost)
+    rng = np.random.default_rng([seed, 97, int(10 * observed)])
+    D = 150
+    P = random_spd(rng, D) / D
+    E = np.sort(rng.choice(D, int(observed * D), replace=False))
+    r = E.size
+    H = np.zeros((2 * r, r))   # sparse rows: each couples two observed coordinates
+    pairs = rng.integers(0, r, (2 * r, 2))
+    H[np.arange(2 * r), pairs[:, 0]], H[np.arange(2 * r), pairs[:, 1]] = 1.0, -0.5
+    H[np.arange(r), np.arange(r)] += 1.0   # and every coordinate observed
+    J, a = H.T @ H, H.T @ rng.standard_normal(2 * r)
+    post, shift = components._observed_block_update(P, E, J, np.flatnonzero(J), a)
+    JE = np.zeros((D, D))
+    JE[np.ix_(E, E)] = J
+    aE = np.zeros(D)
+    aE[E] = a
+    expected = np.linalg.inv(np.linalg.inv(P) + JE)           # (P⁻¹ + E J Eᵀ)⁻¹
+    scale = np.abs(expected).max()
+    np.testing.assert_allclose(post, expected, rtol=0, atol=LINALG_RTOL * scale)
+    np.testing.assert_array_equal(post, post.T)
+    np.testing.assert_allclose(shift, expected @ aE, rtol=0, atol=LINALG_RTOL * np.abs(expected @ aE).max())
+
+
+def test_benchmark_times_the_component_form_against_a_baseline_revision() -> None:
+    # benchmarks/oracle_kf.py --baseline REV: the committed component form (HEAD) against the
+    # one imported now; on a paper preset both are the same filter to round-off
+    import shutil
+    import subprocess
+
+    if shutil.which("git") is None or subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True,
+                                                     cwd=ROOT).returncode:
+        pytest.skip("no git checkout to take the baseline from")
+    module = load_script("benchmarks/oracle_kf.py")
+    out = module.time_baseline("froehle2018", 1, "HEAD", 2, {"n_steps": 6})
+    assert out["steps"] == 6 and len(out["seconds"]["baseline"]) == len(out["seconds"]["current"]) == 2
+    assert out["baseline_steps_per_second"] > 0 and out["current_steps_per_second"] > 0
+    assert out["max_rel_difference"] < FORMS_RTOL

@@ -54,8 +54,15 @@ One step
    coordinates (every vehicle has a GNSS row and V2F rows, a feature is seen by
    several vehicles), so r < m, and the cost is below the O(D² m + m³) of a Kalman gain
    and far below the O(D³) of the dense Joseph form. Where the rows observe more than
-   half of the coordinates (GNSS of position and velocity), P = (P⁻⁻¹ + E J Eᵀ)⁻¹ by two
-   Cholesky inversions (≈ 2 D³) is cheaper. Where P⁻ and R are so far apart that the
+   half of the coordinates (GNSS of position and velocity), two inversions are cheaper:
+   G⁺ = (G⁻¹ + J)⁻¹ is the posterior covariance of y, and the u = D − r coordinates no row
+   observes (features out of every vehicle's range) follow by regression on y
+   (`_observed_block_update`): 2 r³ + O(u r²) operations instead of the 2 D³ of
+   P = (P⁻⁻¹ + E J Eᵀ)⁻¹; where u is small the whole state is inverted (the regression's
+   scattered copies cost more than they save). The inversions (`linalg`) are Cholesky,
+   a triangular inverse by recursive halving with matrix products in place, and L⁻ᵀL⁻¹:
+   LAPACK's potri, whose triangular inverse is several times slower in the OpenBLAS that
+   NumPy ships, was most of a step. Where P⁻ and R are so far apart that the
    posterior of y comes out not positive definite (a small difference of huge numbers),
    the component takes the stacked-row update of the dense form instead
    (`kf_update_nis`: Joseph form, or square-root form where that fails).
@@ -93,6 +100,8 @@ if TYPE_CHECKING:
     from cooploc.estimators.oracle_kf.params import OracleKFParams
 
 __all__ = ["Component", "ComponentFilter"]
+
+GATHER_COST = 400   # operations an entry of D × D a fancy-indexed pass costs, measured against potrf
 
 VEHICLE, FEATURE, CLONE = 0, 1, 2   # CLONE: H x_{k−1} of a vehicle with an odometry row, for one step
 N_KINDS = 3
@@ -203,40 +212,72 @@ def _blocks_positive_definite(cov: FloatArray, c: Component, dims: IntArray) -> 
     return bool(np.isfinite(cov).all())
 
 
-def _spd_inverse_lower(A: FloatArray, overwrite: bool = False) -> FloatArray | None:
-    """The lower triangle of A⁻¹ (the upper one is garbage) of a symmetric positive definite
-    A, of which only the lower triangle is read, by Cholesky (LAPACK potrf, potri); None
-    if A is not positive definite in float64. `overwrite`: A (Fortran-ordered) may be
-    used as the workspace."""
-    from scipy.linalg import lapack
-
-    L, info = lapack.dpotrf(A, lower=True, clean=False, overwrite_a=overwrite)
-    if info != 0:
-        return None
-    inv, info = lapack.dpotri(L, lower=True, overwrite_c=True)
-    return inv if info == 0 else None
-
-
-def _inverse_update(P: FloatArray, E: IntArray, J: FloatArray, nonzero: IntArray) -> FloatArray | None:
-    """(P⁻¹ + E J Eᵀ)⁻¹: the posterior covariance by adding the information to the inverse.
-
-    Only J's nonzeros (flat indices `nonzero`; the rows couple few pairs) are added.
-    LAPACK reads and writes the lower triangle of P⁻¹ alone, and E is ascending, so J's
-    lower triangle lands there; what its upper one adds to the upper garbage is never read.
-    """
-    info = _spd_inverse_lower(P)
-    if info is None:
-        return None
-    i, j = np.divmod(nonzero, E.size)
-    info[E[i], E[j]] += J.ravel()[nonzero]                               # Λ = Λ⁻ + E J Eᵀ
-    post = _spd_inverse_lower(info, overwrite=True)
-    if post is None:
-        return None
+def _full(lower: FloatArray) -> FloatArray:
+    """The symmetric matrix of a Fortran-ordered lower triangle (`linalg.spd_inverse_lower`),
+    in C order (its transpose: free)."""
     from cooploc._matrix_kernels import mirror_lower  # numba: loaded when first needed
 
-    post = np.asfortranarray(post)
-    mirror_lower(post)
-    return post.T                                                       # symmetric: C order for free
+    mirror_lower(lower)
+    return lower.T
+
+
+def _observed_block_update(P: FloatArray, E: IntArray, J: FloatArray, nonzero: IntArray,
+                           a: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+    """(posterior covariance, mean shift) by adding the information to the inverse of the
+    observed block: y = Eᵀθ, the rest u of the state regressed on y.
+
+    With G = Eᵀ P⁻ E the prior covariance of y, the posterior of y is
+    G⁺ = (G⁻¹ + J)⁻¹ and its mean y⁻ + G⁺ a; the unobserved u = A y + e with
+    A = P⁻_uy G⁻¹ and e independent of y and of the rows, so
+    P⁺_uy = A G⁺, P⁺_uu = P⁻_uu − A (G − G⁺) Aᵀ = P⁻_uu − A (P⁻_uy − P⁺_uy)ᵀ and u moves
+    by A G⁺ a. Two r × r inversions (`linalg.spd_inverse_lower`) and O((D − r) r²), instead
+    of the two D × D inversions of P = (P⁻⁻¹ + E J Eᵀ)⁻¹ over the whole state.
+
+    Only J's nonzeros (flat indices `nonzero`; the rows couple few pairs) are added. None
+    if round-off leaves G or G⁻¹ + J not positive definite.
+    """
+    from cooploc.estimators.oracle_kf.linalg import spd_inverse_lower
+
+    D, r = P.shape[0], E.size
+    u = D - r
+    # the regression of u costs O(u r²) and a few scattered passes over the D × D matrix
+    # (fancy indexing, ≈ GATHER_COST operations an entry); where u is small, inverting
+    # the whole state (y = θ, J zero where no row observes) is cheaper
+    whole = 2 * D**3 <= 2 * r**3 + 4 * u * r * r + 2 * u * u * r + GATHER_COST * D * D
+    i, j = np.divmod(nonzero, r)
+    values = J.ravel()[nonzero]
+    if whole:   # y = θ: J's nonzeros and a placed on every coordinate (zero where unobserved)
+        i, j, a = E[i], E[j], np.bincount(E, a, minlength=D)
+    G = P if whole else P[np.ix_(E, E)]
+    G_inv = spd_inverse_lower(G.T)                         # symmetric: Gᵀ is G, Fortran-ordered
+    if G_inv is None:
+        return None
+    if whole:
+        info = G_inv                                       # lower triangle only
+    else:
+        G_inv = _full(G_inv)
+        info = np.asfortranarray(G_inv)                    # a copy: G⁻¹ is needed below
+    info[i, j] += values                                   # G⁻¹ + J (its upper triangle unread)
+    post_y = spd_inverse_lower(info, overwrite=True)
+    if post_y is None:
+        return None
+    post_y = _full(post_y)                                 # G⁺
+    shift_y = post_y @ a                                   # G⁺ a
+    if whole:
+        return post_y, shift_y
+    u = np.setdiff1d(np.arange(D), E, assume_unique=True)
+    P_uy = P[np.ix_(u, E)]
+    A = P_uy @ G_inv                                       # u = A y + e
+    post_uy = A @ post_y                                   # P⁺_uy = A G⁺
+    post_uu = symmetrize(P[np.ix_(u, u)] - A @ (P_uy - post_uy).T)
+    post = np.empty((D, D))
+    post[np.ix_(E, E)] = post_y
+    post[np.ix_(u, E)] = post_uy
+    post[np.ix_(E, u)] = post_uy.T
+    post[np.ix_(u, u)] = post_uu
+    shift = np.empty(D)
+    shift[E], shift[u] = shift_y, A @ shift_y
+    return post, shift
 
 
 @dataclass(frozen=True)
@@ -703,16 +744,13 @@ class ComponentFilter:
         Σ νᵀR⁻¹ν, or None (`c` untouched) where round-off ate the posterior."""
         P = c.cov
         r = E.size
-        if 2 * r > P.shape[0]:  # most coordinates observed: two inversions are cheaper
-            post = _inverse_update(P, E, J, J_nonzero)
-            if post is None or not _blocks_positive_definite(post, c, self.dims):
+        if 2 * r > P.shape[0]:  # most coordinates observed: two r × r inversions are cheaper
+            update = _observed_block_update(P, E, J, J_nonzero, a)
+            if update is None or not _blocks_positive_definite(update[0], c, self.dims):
                 return None
-            a_full = np.zeros(P.shape[0])
-            a_full[E] = a
-            shift = post @ a_full                                      # P E a, posterior P
-            c.mean = c.mean + shift                                    # θ = θ⁻ + P E a
-            c.cov = post
-            return float(a_full @ shift)                               # Eᵀ P E = G (I + J G)⁻¹
+            c.cov, shift = update
+            c.mean = c.mean + shift                                    # θ = θ⁻ + P⁻E b
+            return float(a @ shift[E])                                 # aᵀ G⁺ a = (G a)ᵀ b
         PE = P[:, E]                                                   # P⁻ E   (D, r)
         G = PE[E]                                                      # Eᵀ P⁻ E
         X = np.linalg.solve(np.eye(r) + J @ G, np.column_stack([a, J]))
