@@ -39,6 +39,7 @@ from __future__ import annotations
 from cooploc.estimators.sme.pf import SmePF, SmePFParams
 from cooploc.estimators.sme.pseudo_measurement import (
     PseudoMeasurement,
+    complex_points_from_power_sums,
     complex_power_sum_moments,
     complex_power_sums,
     gaussian_raw_moments,
@@ -56,6 +57,7 @@ __all__ = [
     "SmePFParams",
     "SmeUKF",
     "SmeUKFParams",
+    "complex_points_from_power_sums",
     "complex_power_sum_moments",
     "complex_power_sums",
     "gaussian_raw_moments",

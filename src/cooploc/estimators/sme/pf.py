@@ -159,6 +159,10 @@ class SmePFParams(_SmeParams):
         a Gaussian (marginalized particle filter, Schön et al. 2005; module
         `marginalized`); default by measurement (module docstring). The linearized
         proposal only: the bootstrap one always samples the whole state.
+    pseudo_likelihood : the density of the GPS pseudo-measurement (eq. 17) the particles
+        are weighted by: "exact" — the exact density of the power sums of Gaussian rows
+        (for N ≤ 7 vehicles a group; the Gaussian one above); "gaussian" — eq. (19)'s
+        Gaussian pseudo-noise with exact moments. Default by measurement (module docstring).
     """
 
     n_particles: int = param(8000, ge=2)
@@ -171,6 +175,7 @@ class SmePFParams(_SmeParams):
     n_moves: int = param(2, ge=0)
     max_stages: int = param(20, ge=1)
     rao_blackwellised: bool = True
+    pseudo_likelihood: Literal["exact", "gaussian"] = "exact"
 
 
 @register_estimator
@@ -190,6 +195,7 @@ class SmePF(_SmeFilter):
     def __init__(self, setup: Setup, params: SmePFParams, rng: np.random.Generator) -> None:
         super().__init__(setup, params, rng)
         self.params: SmePFParams = params
+        self.density = params.pseudo_likelihood
         P = params.n_particles
         self.particles = np.zeros((P, 0, self.dx))
         self.log_w = np.full(P, -np.log(P))
