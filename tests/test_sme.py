@@ -179,7 +179,8 @@ def test_numba_likelihood_equals_the_numpy_reference(rng: np.random.Generator, f
 
 
 @pytest.mark.parametrize("form", ["axes", "complex"])
-def test_exact_density_equals_the_numpy_reference_and_brute_force(rng: np.random.Generator, form: str) -> None:
+def test_exact_density_equals_the_numpy_reference_and_brute_force(rng: np.random.Generator,
+                                                                  form: str) -> None:
     import itertools
 
     n = 4
@@ -210,7 +211,8 @@ def test_exact_density_equals_the_numpy_reference_and_brute_force(rng: np.random
 
 
 @pytest.mark.parametrize("form", ["axes", "complex"])
-def test_exact_density_is_the_gaussian_one_where_the_map_is_linear(rng: np.random.Generator, form: str) -> None:
+def test_exact_density_is_the_gaussian_one_where_the_map_is_linear(rng: np.random.Generator,
+                                                                   form: str) -> None:
     # rows well apart, noise tiny against the spacing: the power sums are linear over the
     # noise, y ≈ s(x) + J w, so N(y; s(x), J R Jᵀ) = N(m − x; 0, R) / |J| — the exact density
     # with its Jacobian. Checks the constants (N!, the Vandermonde, the Gaussian's).
@@ -221,8 +223,8 @@ def test_exact_density_is_the_gaussian_one_where_the_map_is_linear(rng: np.rando
     y = complex_power_sums(z, n) if form == "complex" else np.concatenate(
         [power_sums(z[:, 0], n), power_sums(z[:, 1], n)])
     particles = truth + 1e-4 * rng.standard_normal((8, n, 2))
-    exact, gaussian = (PseudoMeasurement(np.zeros(2), 1.0, form, var, 1.0, y, None, 0.0, density).log_likelihood(
-        particles) for density in ("exact", "gaussian"))
+    exact, gaussian = (PseudoMeasurement(np.zeros(2), 1.0, form, var, 1.0, y, None, 0.0, density)
+                       .log_likelihood(particles) for density in ("exact", "gaussian"))
     # log densities ~ 40; the Gaussian's second-order terms are ~ σ / spacing ~ 1e-3 of them
     np.testing.assert_allclose(exact, gaussian, atol=0.05)
 

@@ -60,8 +60,8 @@ from cooploc.reproduce.zhang2016_information import topology_gain
 from cooploc.results import summarize
 
 __all__ = ["ANONYMOUS_LABEL", "AXES_LABEL", "AXES_UKF_LABEL", "BOOTSTRAP_LABEL", "BOUND", "COMPARED",
-           "EXPERIMENT", "GAUSSIAN_LABEL", "HYPOTHESES_LABEL", "NO_TOPOLOGY_LABEL", "PARTICLES_LABEL", "SCENARIOS",
-           "analysis_checks", "claims", "per_run_total"]
+           "EXPERIMENT", "GAUSSIAN_LABEL", "HYPOTHESES_LABEL", "NO_TOPOLOGY_LABEL", "PARTICLES_LABEL",
+           "SCENARIOS", "analysis_checks", "claims", "per_run_total"]
 
 SCENARIOS = ("zhang2016-cv", "zhang2016-ct2", "zhang2016-ct4")
 BOUND = "oracle-pose"

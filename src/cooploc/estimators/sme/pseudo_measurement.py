@@ -50,8 +50,8 @@ from cooploc.types import FloatArray
 
 __all__ = [
     "PseudoMeasurement",
-    "complex_power_sum_moments",
     "complex_points_from_power_sums",
+    "complex_power_sum_moments",
     "complex_power_sums",
     "gaussian_raw_moments",
     "permutations",
@@ -285,14 +285,15 @@ class PseudoMeasurement:
         u = np.ascontiguousarray((positions - self.centre) / self.scale)
         exact = self.exact(u.shape[1])
         y_gnss = np.zeros(2 * u.shape[1]) if self.y_gnss is None else self.y_gnss
+        gnss_var = np.asarray(self.gnss_var, dtype=float)
         out = sme_log_likelihood(u, np.ascontiguousarray(y_gnss, dtype=float),
-                                 np.asarray(self.gnss_var, dtype=float), self.y_gnss is not None and not exact,
+                                 gnss_var, self.y_gnss is not None and not exact,
                                  self.form == "complex", float(self.y_radar or 0.0),
                                  float(self.radar_var), self.y_radar is not None, float(self.jitter))
         if exact:
             rows, log_jacobian = self.rows()
-            out += anonymous_rows_log_likelihood(u, rows, np.asarray(self.gnss_var, dtype=float),
-                                                 permutations(u.shape[1]), self.form == "complex") - log_jacobian
+            out += anonymous_rows_log_likelihood(u, rows, gnss_var, permutations(u.shape[1]),
+                                                 self.form == "complex") - log_jacobian
         return out
 
     def exact_gnss_log_likelihood_reference(self, positions: FloatArray) -> FloatArray:
