@@ -27,13 +27,16 @@ positions (`power_sum_moments` from the raw moments `gaussian_raw_moments`;
 measured parts as eq. (19) and evaluates y = h(x) + b(x) + e, e ~ N(0, R(x)) — bias
 b and covariance R per state, Gaussian shape, relative `jitter` on diag R — as a
 log-likelihood per particle (numba, `_kernels`, compiled on first use) and as the
-stacked moments at sigma points.
+stacked moments at sigma points. With ``density="exact"`` the GPS part is instead the
+exact density of the sums of powers: the rows recovered from y (Newton's identities,
+`complex_points_from_power_sums`), log Σ_σ Π_i N(m_σ(i); p_i, R) − log |det ∂y/∂m|, a sum
+over the N! associations (``docs/sme.md``, "The exact density").
 
 Positions enter scaled, u = (p − c)/ℓ, with c and ℓ fixed per step by the predicted
 belief (``docs/sme.md``, "Numerical scaling").
 
 Complexity per state: O(N²) power sums, O(N³) per-axis moments, O(N⁴) complex moments,
-O(N) topology; a 2N × 2N Cholesky per likelihood.
+O(N) topology; a 2N × 2N Cholesky per likelihood; the exact density O(N! N) at most.
 """
 
 from __future__ import annotations
