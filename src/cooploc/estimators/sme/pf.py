@@ -85,13 +85,14 @@ Why the default is ``"exact"``: the Gaussian's state-dependent covariance R(x) c
 map's Jacobian at the *particle*, |det R(x)|^{-1/2} ∝ ∏_{i<j} |c_i − c_j|^{-2} where the map is
 linear, a spurious attraction between vehicles that are close (a particle with a pair 2 m
 apart outweighs one with it at its true 4 m by e^{1.6}, GPS 0.5 m²); the exact density has
-the Jacobian at the measured rows, the same for every particle. In CT-4 (20 runs, seed 0,
-8000 particles, paired) that took `sme-pf` from 1.038 × the MHT with SME's information
-(``reproduce/zhang2016_anonymous``) to 1.000 (0.997 … 1.002), and from −0.007 m to
-−0.071 m (−0.078 … −0.064) against `kf-known-da`; over the 24 close steps from +0.135 m to
-−0.076 m. Its effective sample sizes are no larger than the Gaussian's: what the Gaussian
-lost was its target, not particles. Numbers, CV / CT-2 and commands: ``docs/sme.md``,
-"Where sme-pf loses".
+the Jacobian at the measured rows, the same for every particle. In CT-4 (58 runs, seed 0,
+8000 particles, paired) that took `sme-pf` from 1.039 × the MHT with SME's information
+(``reproduce/zhang2016_anonymous``) to 1.000 (0.998 … 1.001), and from −0.008 m to
+−0.073 m (−0.077 … −0.069) against `kf-known-da`; over the 24 close steps from +0.117 m to
+−0.100 m. CV and CT-2 stay at the MHT (1.000, 1.003; 23 and 25 runs); 8000 → 32000
+particles change CT-4 by −0.001 m (−0.005 … +0.004). Its effective sample sizes are no
+larger than the Gaussian's: what the Gaussian lost was its target, not particles.
+Numbers, CV / CT-2 and commands: ``docs/sme.md``, "Where sme-pf loses".
 
 Other choices the paper leaves open
 -----------------------------------
