@@ -45,13 +45,12 @@ paper's five vehicles.
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import numpy as np
 
 from cooploc.errors import InvalidInputError
-from cooploc.estimators.sme.pseudo_measurement import topology_moments
+from cooploc.estimators.sme.pseudo_measurement import permutations, topology_moments
 from cooploc.gaussian import Gaussians, block_diagonal, gaussian_logpdf, kf_predict, kf_update
 from cooploc.particles import log_sum_exp
 from cooploc.types import FloatArray, IntArray, Recording
@@ -94,11 +93,6 @@ class AnonymousModel:
     def position_columns(self) -> IntArray:
         """(2N,) the joint-state columns of p_x, p_y of each vehicle, vehicle-major."""
         return (np.arange(self.n)[:, None] * self.dx + np.asarray(self.position)[None]).ravel()
-
-
-def permutations(n: int) -> IntArray:
-    """(n!, n) every permutation of range(n), the identity first."""
-    return np.array(list(itertools.permutations(range(n))), dtype=np.int64)
 
 
 def gps_update(belief: Gaussians, log_w: FloatArray, rows: FloatArray, model: AnonymousModel,

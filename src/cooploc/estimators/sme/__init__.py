@@ -11,8 +11,9 @@ pseudo-measurement of eq. (19). Derivation of its noise moments: ``docs/sme.md``
 The problem apart from the filters that use it:
 
 - `pseudo_measurement` — the symmetric maps, their exact Gaussian noise moments,
-  Newton's identities, and `PseudoMeasurement` (eq. 19 of one step; its numba
-  likelihood kernel lives in the private `_kernels`, compiled on first use);
+  Newton's identities, and `PseudoMeasurement` (eq. 19 of one step, weighed by the
+  Gaussian pseudo-noise or by the exact density of the sums of powers; its numba
+  likelihood kernels live in the private `_kernels`, compiled on first use);
 - `filter_base` — what both filters share: parameters, vehicles entering and leaving,
   GPS gating against clutter, the per-step assembly of eq. (19), and the two modes:
   ``"joint"`` (the paper's: one radar that sees every vehicle, `zhang2016-*`) and
@@ -39,6 +40,7 @@ from __future__ import annotations
 from cooploc.estimators.sme.pf import SmePF, SmePFParams
 from cooploc.estimators.sme.pseudo_measurement import (
     PseudoMeasurement,
+    complex_points_from_power_sums,
     complex_power_sum_moments,
     complex_power_sums,
     gaussian_raw_moments,
@@ -56,6 +58,7 @@ __all__ = [
     "SmePFParams",
     "SmeUKF",
     "SmeUKFParams",
+    "complex_points_from_power_sums",
     "complex_power_sum_moments",
     "complex_power_sums",
     "gaussian_raw_moments",

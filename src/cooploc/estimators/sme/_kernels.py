@@ -157,6 +157,78 @@ def sme_log_likelihood(u: FloatArray, y_gnss: FloatArray, gnss_var: FloatArray, 
     return out
 
 
+_NEGLIGIBLE = 40.0   # an association whose cost exceeds the best by this adds < e^−40 relative
+
+
+@numba.njit(cache=True)
+def _greedy_cost(cost: FloatArray, a0: int, a1: int, taken: np.ndarray) -> float:
+    """Cost of the greedy association (each slot in turn its cheapest free row) over the
+    axes a0..a1 − 1 of cost (2, N, N): an upper bound on the best association's cost."""
+    n = cost.shape[1]
+    taken[:] = False
+    total = 0.0
+    for i in range(n):
+        best, arg = np.inf, 0
+        for j in range(n):
+            c = 0.0
+            for a in range(a0, a1):
+                c += cost[a, i, j]
+            if not taken[j] and c < best:
+                best, arg = c, j
+        taken[arg] = True
+        total += best
+    return total
+
+
+@numba.njit(cache=True)
+def anonymous_rows_log_likelihood(u: FloatArray, rows: FloatArray, var: FloatArray, perms: np.ndarray,
+                                  joint: bool) -> FloatArray:
+    """log Σ_σ Π_i N(rows_σ(i); u_p,i, diag var) for scaled positions u (P, N, 2): the exact
+    density of anonymous rows (N, 2) up to the Jacobian of the power sums (docs/sme.md).
+
+    joint: one association σ for both axes (complex sums); else one per axis (eq. 17 per
+    axis: the x rows and the y rows are two multisets). perms (N!, N). Associations whose
+    cost exceeds the greedy one's by `_NEGLIGIBLE` are dropped as soon as their partial sum
+    does (their share is below e^−40 of the best: beneath float64 rounding of the sum), so
+    apart vehicles cost O(N!) comparisons and a few exponentials. O(P N! N) at most.
+    """
+    P, n = u.shape[0], u.shape[1]
+    out = np.empty(P)
+    norm = -0.5 * n * (np.log(2.0 * np.pi * var[0]) + np.log(2.0 * np.pi * var[1]))
+    cost = np.empty((2, n, n))
+    taken = np.zeros(n, dtype=np.bool_)
+    kept = np.empty(perms.shape[0])
+    for p in range(P):
+        for a in range(2):
+            for i in range(n):
+                for j in range(n):
+                    d = rows[j, a] - u[p, i, a]
+                    cost[a, i, j] = 0.5 * d * d / var[a]
+        total = norm
+        for axis in range(1 if joint else 2):
+            a0, a1 = (0, 2) if joint else (axis, axis + 1)
+            bound = _greedy_cost(cost, a0, a1, taken) + _NEGLIGIBLE
+            count = 0
+            best = np.inf
+            for m in range(perms.shape[0]):
+                c = 0.0
+                for i in range(n):
+                    for a in range(a0, a1):
+                        c += cost[a, i, perms[m, i]]
+                    if c > bound:
+                        break
+                if c <= bound:
+                    kept[count] = c
+                    count += 1
+                    best = min(best, c)
+            acc = 0.0                                # −log Σ exp(−c) = best − log Σ exp(best − c)
+            for m in range(count):
+                acc += np.exp(best - kept[m])
+            total += -best + np.log(acc)
+        out[p] = total
+    return out
+
+
 @numba.njit(cache=True)
 def best_permutations(cost: FloatArray, perms: np.ndarray) -> np.ndarray:
     """For each particle p, the row of `perms` (M, N) minimising Σ_i cost[p, i, perms[m, i]].

@@ -134,6 +134,10 @@ class _SmeParams(Params):
 class _SmeFilter:
     """Bookkeeping of both SME filters: vehicles in and out, pseudo-measurements, gating."""
 
+    # the GPS pseudo-measurement's density (`PseudoMeasurement.density`): the UKF uses its
+    # moments only; `sme-pf` may take the exact density
+    density: str = "gaussian"
+
     Params: ClassVar[type[Params]]
     needs_truth: ClassVar[bool] = False
     default_preset: ClassVar[str] = "zhang2016-cv"
@@ -246,7 +250,7 @@ class _SmeFilter:
         elif self.params.use_radar and n:
             info["skipped"].append("radar")
         model = PseudoMeasurement(centre, scale, self.params.form, gnss_var, radar_var, y_gnss, y_radar,
-                                  self.params.jitter)
+                                  self.params.jitter, self.density)
         return model, info
 
     # -- per-radar mode (traffic) ---------------------------------------------------------
@@ -272,7 +276,8 @@ class _SmeFilter:
             gnss_var = gnss_var / scale**2
         return PseudoMeasurement(centre, scale, self.params.form,
                                  np.ones(2) if gnss_var is None else gnss_var, radar_var / scale**2,
-                                 y_gnss, None if y_radar is None else y_radar / scale**2, self.params.jitter)
+                                 y_gnss, None if y_radar is None else y_radar / scale**2, self.params.jitter,
+                                 self.density)
 
     def _seat_births(self, frame: Frame) -> int:
         """Vehicles that entered together at the previous step, moved to the rows their first

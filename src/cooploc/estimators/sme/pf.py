@@ -62,13 +62,37 @@ whole state. In the joint mode the pseudo-measurements are of positions in every
 (rows with velocities enter as their position marginal, `filter_base`), so the split holds
 there; the per-radar mode does not use it.
 
-Why it is the default: paired over the same 10 runs at 8000 particles (about the same
+Why it is the default (measured with the Gaussian pseudo-noise, before the exact density
+below): paired over the same 10 runs at 8000 particles (about the same
 CPU time per step as the full-state filter) it lowers the total error in CV / CT-2 /
 CT-4 by 0.028 / 0.021 / 0.029 m, reaches the MHT that has exactly SME's information in
 CV and CT-2 (+0.001 / +0.008 m), and in CT-4 moves `sme-pf` from above `kf-known-da` to
 below it (−0.011 m at 8000 particles, not significant at 10 runs; −0.021 m, 90 %
 interval −0.036 … −0.006, at 16000). Numbers and commands: ``docs/sme.md``, "Where
 sme-pf loses".
+
+The pseudo-likelihood (`pseudo_likelihood`)
+-------------------------------------------
+The paper defers the pseudo-measurement's noise to its references (§3.3). ``"exact"``
+(default) weighs by the exact density of the sums of powers of Gaussian rows: the rows
+recovered from y by Newton's identities (§3.2.3), summed over their N! associations, over
+the map's Jacobian, which depends on y alone (`PseudoMeasurement.density`, ``docs/sme.md``,
+"The exact density"); ``"gaussian"`` by eq. (19)'s Gaussian pseudo-noise N(y; h(x) + b(x),
+R(x)) with exact moments (the default before). Groups of more than 7 vehicles keep the
+Gaussian. The proposal is the same linearization for both.
+
+Why the default is ``"exact"``: the Gaussian's state-dependent covariance R(x) carries the
+map's Jacobian at the *particle*, |det R(x)|^{-1/2} ∝ ∏_{i<j} |c_i − c_j|^{-2} where the map is
+linear, a spurious attraction between vehicles that are close (a particle with a pair 2 m
+apart outweighs one with it at its true 4 m by e^{1.6}, GPS 0.5 m²); the exact density has
+the Jacobian at the measured rows, the same for every particle. In CT-4 (58 runs, seed 0,
+8000 particles, paired) that took `sme-pf` from 1.039 × the MHT with SME's information
+(``reproduce/zhang2016_anonymous``) to 1.000 (0.998 … 1.001), and from −0.008 m to
+−0.073 m (−0.077 … −0.069) against `kf-known-da`; over the 24 close steps from +0.117 m to
+−0.100 m. CV and CT-2 stay at the MHT (1.000, 1.003; 23 and 25 runs); 8000 → 32000
+particles change CT-4 by −0.001 m (−0.005 … +0.004). Its effective sample sizes are no
+larger than the Gaussian's: what the Gaussian lost was its target, not particles.
+Numbers, CV / CT-2 and commands: ``docs/sme.md``, "Where sme-pf loses".
 
 Other choices the paper leaves open
 -----------------------------------
@@ -86,8 +110,9 @@ Other choices the paper leaves open
   there: 2000 → 8000 particles −0.06 m in CV, −0.12 m in CT-4, and 8000 → 32000 −0.04 m
   in CT-4 (1.90 / 1.78 / 1.74 m). The Rao–Blackwellised filter at 8000 is at the
   full-state filter's 32000 in CT-4 (1.745 m against 1.738 m, 10 runs) and 16000 gain
-  it −0.010 m more (−0.022 … +0.002). What `sme-pf` loses against `kf-known-da` in
-  CT-4 was this particle approximation, not the method (``docs/sme.md``, "Where sme-pf
+  it −0.010 m more (−0.022 … +0.002) (all with the Gaussian pseudo-noise). What
+  `sme-pf` then still lost against `kf-known-da` in CT-4 was not the particles but the
+  Gaussian pseudo-noise (above, "The pseudo-likelihood"; ``docs/sme.md``, "Where sme-pf
   loses").
 - Resampling, effective sample size and the moments of the joint cloud come from
   `cooploc.particles` (`systematic_resample`, `effective_sample_size`,
@@ -108,8 +133,9 @@ for the linearized one), ``acceptance`` (of the moves) and ``degenerate`` (every
 likelihood was zero) to the keys of `filter_base`.
 
 Complexity per step: linearized, O(d³ + d² D) for the linearization (d = N dx,
-D = 2N + 1) and O(P d²) to draw, plus one likelihood pass (per particle: moments O(N⁴) in
-complex form, O(N³) per axis, and a 2N × 2N Cholesky) and `n_moves` more when it
+D = 2N + 1) and O(P d²) to draw, plus one likelihood pass (per particle: the exact density
+O(N! N) at most, a few exponentials where vehicles are apart; the Gaussian one's moments O(N⁴)
+in complex form, O(N³) per axis, and a 2N × 2N Cholesky) and `n_moves` more when it
 resamples; bootstrap, S tempering stages with `n_moves` likelihood passes each. Plus
 O(P N! N) for the relabelling.
 """
@@ -159,6 +185,10 @@ class SmePFParams(_SmeParams):
         a Gaussian (marginalized particle filter, Schön et al. 2005; module
         `marginalized`); default by measurement (module docstring). The linearized
         proposal only: the bootstrap one always samples the whole state.
+    pseudo_likelihood : the density of the GPS pseudo-measurement (eq. 17) the particles
+        are weighted by: "exact" — the exact density of the power sums of Gaussian rows
+        (for N ≤ 7 vehicles a group; the Gaussian one above); "gaussian" — eq. (19)'s
+        Gaussian pseudo-noise with exact moments. Default by measurement (module docstring).
     """
 
     n_particles: int = param(8000, ge=2)
@@ -171,6 +201,7 @@ class SmePFParams(_SmeParams):
     n_moves: int = param(2, ge=0)
     max_stages: int = param(20, ge=1)
     rao_blackwellised: bool = True
+    pseudo_likelihood: Literal["exact", "gaussian"] = "exact"
 
 
 @register_estimator
@@ -190,6 +221,7 @@ class SmePF(_SmeFilter):
     def __init__(self, setup: Setup, params: SmePFParams, rng: np.random.Generator) -> None:
         super().__init__(setup, params, rng)
         self.params: SmePFParams = params
+        self.density = params.pseudo_likelihood
         P = params.n_particles
         self.particles = np.zeros((P, 0, self.dx))
         self.log_w = np.full(P, -np.log(P))

@@ -27,17 +27,21 @@ positions (`power_sum_moments` from the raw moments `gaussian_raw_moments`;
 measured parts as eq. (19) and evaluates y = h(x) + b(x) + e, e ~ N(0, R(x)) — bias
 b and covariance R per state, Gaussian shape, relative `jitter` on diag R — as a
 log-likelihood per particle (numba, `_kernels`, compiled on first use) and as the
-stacked moments at sigma points.
+stacked moments at sigma points. With ``density="exact"`` the GPS part is instead the
+exact density of the sums of powers: the rows recovered from y (Newton's identities,
+`complex_points_from_power_sums`), log Σ_σ Π_i N(m_σ(i); p_i, R) − log |det ∂y/∂m|, a sum
+over the N! associations (``docs/sme.md``, "The exact density").
 
 Positions enter scaled, u = (p − c)/ℓ, with c and ℓ fixed per step by the predicted
 belief (``docs/sme.md``, "Numerical scaling").
 
 Complexity per state: O(N²) power sums, O(N³) per-axis moments, O(N⁴) complex moments,
-O(N) topology; a 2N × 2N Cholesky per likelihood.
+O(N) topology; a 2N × 2N Cholesky per likelihood; the exact density O(N! N) at most.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from functools import cache
@@ -49,15 +53,28 @@ from cooploc.types import FloatArray
 
 __all__ = [
     "PseudoMeasurement",
+    "complex_points_from_power_sums",
     "complex_power_sum_moments",
     "complex_power_sums",
     "gaussian_raw_moments",
+    "permutations",
     "points_from_power_sums",
     "power_sum_moments",
     "power_sums",
     "topology",
     "topology_moments",
 ]
+
+
+MAX_EXACT_VEHICLES = 7   # the exact density sums over N! associations: 5040 at N = 7
+
+
+@cache
+def permutations(n: int) -> np.ndarray:
+    """(n!, n) int64: every permutation of range(n), the identity first (read-only)."""
+    table = np.array(list(itertools.permutations(range(n))), dtype=np.int64).reshape(-1, n)
+    table.setflags(write=False)
+    return table
 
 
 @cache
@@ -95,15 +112,30 @@ def points_from_power_sums(sums: FloatArray) -> FloatArray:
     Σ_k (−1)^k e_k t^{N−k}. Returns the real parts, sorted. This is why the map loses no
     information in one dimension (§3.2.3).
     """
+    return np.sort(_roots_of_power_sums(np.asarray(sums, dtype=float)).real)
+
+
+def complex_points_from_power_sums(sums: FloatArray) -> FloatArray:
+    """Recover the N points (N, 2) from [Re s; Im s] (2N,) of their complex power sums.
+
+    The same Newton identities over the complex numbers: the points x + i y are the roots
+    of one polynomial, so they come back with their pairing (in no particular order).
+    """
     s = np.asarray(sums, dtype=float)
+    n = s.size // 2
+    c = _roots_of_power_sums(s[:n] + 1j * s[n:])
+    return np.stack([c.real, c.imag], axis=-1)
+
+
+def _roots_of_power_sums(s: np.ndarray) -> np.ndarray:
+    """The N roots whose power sums s_k, k = 1..N, are s (real or complex), unsorted."""
     n = s.size
-    e = np.zeros(n + 1)
+    e = np.zeros(n + 1, dtype=s.dtype)
     e[0] = 1.0
-    for k in range(1, n + 1):
+    for k in range(1, n + 1):                  # k e_k = Σ_{i=1..k} (−1)^{i−1} e_{k−i} s_i
         i = np.arange(1, k + 1)
         e[k] = np.sum((-1.0) ** (i - 1) * e[k - i] * s[i - 1]) / k
-    coefficients = (-1.0) ** np.arange(n + 1) * e
-    return np.sort(np.roots(coefficients).real)
+    return np.roots((-1.0) ** np.arange(n + 1) * e)
 
 
 def gaussian_raw_moments(mean: FloatArray, var: FloatArray, order: int) -> FloatArray:
@@ -210,6 +242,10 @@ class PseudoMeasurement:
     gnss_var (2,) per-axis GPS row variance (scaled), radar_var the radar one (scaled),
     y_gnss (2N,) measured GPS pseudo-measurement or None (skipped), y_radar measured T or None.
     jitter : relative regularisation added to diag R.
+    density : the GPS part's density p(y_gnss | x): "gaussian" — N(y; h(x) + b(x), R(x)),
+        eq. (19)'s Gaussian pseudo-noise with exact moments; "exact" — the exact density of
+        the power sums of Gaussian rows (``docs/sme.md``, "The exact density"), used for
+        N ≤ `MAX_EXACT_VEHICLES` (the Gaussian one above that). T is Gaussian in both.
     """
 
     centre: FloatArray
@@ -220,17 +256,64 @@ class PseudoMeasurement:
     y_gnss: FloatArray | None
     y_radar: float | None
     jitter: float
+    density: str = "gaussian"
+
+    def exact(self, n: int) -> bool:
+        """Whether the GPS part of N = n vehicles uses the exact density."""
+        return self.density == "exact" and self.y_gnss is not None and n <= MAX_EXACT_VEHICLES
+
+    def rows(self) -> tuple[FloatArray, float]:
+        """The scaled GPS rows (N, 2) the measured power sums are of, in no particular order
+        (per axis, each column sorted on its own: the pairing is not in eq. 17), and
+        log |det ∂y_gnss/∂rows| (``docs/sme.md``, "The exact density")."""
+        y = np.asarray(self.y_gnss, dtype=float)
+        n = y.size // 2
+        if self.form == "complex":
+            rows = complex_points_from_power_sums(y)
+            c = rows[:, 0] + 1j * rows[:, 1]
+            gaps = [np.abs(c[i] - c[j]) for i in range(n) for j in range(i)]
+            # |det_R| = |det_C|² = (N! ∏_{i<j} |c_i − c_j|)² for a holomorphic map
+            log_jacobian = 2.0 * (math.lgamma(n + 1) + float(np.sum(np.log(gaps))))
+        else:
+            rows = np.stack([points_from_power_sums(y[:n]), points_from_power_sums(y[n:])], -1)
+            gaps = [np.abs(rows[i] - rows[j]) for i in range(n) for j in range(i)]
+            # per axis det = N! ∏_{i<j} (v_i − v_j) (Vandermonde)
+            log_jacobian = 2.0 * math.lgamma(n + 1) + float(np.sum(np.log(gaps)))
+        return rows, log_jacobian if np.isfinite(log_jacobian) else 0.0
 
     def log_likelihood(self, positions: FloatArray) -> FloatArray:
         """log p(y | positions) for positions (P, N, 2) in the global frame → (P,) (numba)."""
-        from cooploc.estimators.sme._kernels import sme_log_likelihood
+        from cooploc.estimators.sme._kernels import anonymous_rows_log_likelihood, sme_log_likelihood
 
         u = np.ascontiguousarray((positions - self.centre) / self.scale)
+        exact = self.exact(u.shape[1])
         y_gnss = np.zeros(2 * u.shape[1]) if self.y_gnss is None else self.y_gnss
-        return sme_log_likelihood(u, np.ascontiguousarray(y_gnss, dtype=float),
-                                  np.asarray(self.gnss_var, dtype=float), self.y_gnss is not None,
-                                  self.form == "complex", float(self.y_radar or 0.0),
-                                  float(self.radar_var), self.y_radar is not None, float(self.jitter))
+        gnss_var = np.asarray(self.gnss_var, dtype=float)
+        out = sme_log_likelihood(u, np.ascontiguousarray(y_gnss, dtype=float),
+                                 gnss_var, self.y_gnss is not None and not exact,
+                                 self.form == "complex", float(self.y_radar or 0.0),
+                                 float(self.radar_var), self.y_radar is not None, float(self.jitter))
+        if exact:
+            rows, log_jacobian = self.rows()
+            out += anonymous_rows_log_likelihood(u, rows, gnss_var, permutations(u.shape[1]),
+                                                 self.form == "complex") - log_jacobian
+        return out
+
+    def exact_gnss_log_likelihood_reference(self, positions: FloatArray) -> FloatArray:
+        """The exact density's log p(y_gnss | positions) (..., N, 2) → (...) in plain NumPy (tests):
+        log Σ_σ Π_i N(m_σ(i); u_i, diag var) − log |det ∂y/∂m|, per axis for ``form="axes"``."""
+        u = (positions - self.centre) / self.scale
+        rows, log_jacobian = self.rows()
+        perms = permutations(u.shape[-2])
+        var = np.asarray(self.gnss_var, dtype=float)
+        # −½ (m_j − u_i)² / var − ½ log(2π var), per axis: (..., N, N, 2)
+        cost = -0.5 * ((rows[None, :] - u[..., :, None, :]) ** 2 / var + np.log(2 * np.pi * var))
+        n = u.shape[-2]
+        if self.form == "complex":
+            per_sigma = cost.sum(-1)[..., np.arange(n), perms].sum(-1)            # (..., N!)
+            return np.logaddexp.reduce(per_sigma, axis=-1) - log_jacobian
+        per_sigma = cost[..., np.arange(n), perms, :].sum(-2)                      # (..., N!, 2)
+        return np.logaddexp.reduce(per_sigma, axis=-2).sum(-1) - log_jacobian
 
     def gnss_moments(self, u: FloatArray) -> tuple[FloatArray, FloatArray]:
         """E[y_gnss | u] (..., 2N) and its covariance (..., 2N, 2N) for scaled positions u (..., N, 2)."""
@@ -250,7 +333,9 @@ class PseudoMeasurement:
         """The same as `log_likelihood` in plain NumPy, for positions (..., N, 2) (tests)."""
         u = (positions - self.centre) / self.scale
         total = np.zeros(u.shape[:-2])
-        if self.y_gnss is not None:
+        if self.exact(u.shape[-2]):
+            total = total + self.exact_gnss_log_likelihood_reference(positions)
+        elif self.y_gnss is not None:
             mean, cov = self.gnss_moments(u)
             total = total + gaussian_logpdf(self.y_gnss - mean, cov)
         if self.y_radar is not None:
