@@ -346,6 +346,33 @@ def test_particle_version_matches_the_exact_snapshot() -> None:
             < np.trace(prior.cov[:, :2, :2], axis1=1, axis2=2)).all()
 
 
+def _feature_spread(rec: Recording, feature_memory: bool) -> tuple[float, float]:
+    """icp-da-pf on `rec`: the largest standard deviation of a reported feature (m) and the
+    largest distance of a reported feature from every true one (m), over the run."""
+    params = get_estimator("icp-da-pf").Params(n_particles=100, feature_memory=feature_memory)
+    widest = farthest = 0.0
+    for k, estimate in enumerate(run_estimator("icp-da-pf", rec, params=params)):
+        f = estimate.features
+        if len(f.ids):
+            true = rec.truth.feature_states[k][rec.truth.feature_present[k]][:, :2]
+            distance = np.linalg.norm(f.mean[:, None, :2] - true[None], axis=2).min(axis=1)
+            farthest = max(farthest, float(distance.max()))
+            widest = max(widest, float(np.sqrt(np.linalg.eigvalsh(f.cov[:, :2, :2])[:, -1]).max()))
+    return widest, farthest
+
+
+def test_particle_version_keeps_soft_paired_features_proper() -> None:
+    # a feature whose pairings are soft has g(f, v) ≥ P(α = 0) everywhere: under a uniform
+    # prior its weights P(α = 0) / proposal sit in the proposal's tails, and each step's
+    # proposal, inflated from the last belief, is wider still (module doc of particle_bp,
+    # "The feature prior"); the predicted copy as prior (24) keeps it near the rows
+    rec = preset_recording("brambilla-crossroad", 0, {"detection_probability": 0.7})
+    widest, farthest = _feature_spread(rec, feature_memory=True)
+    assert widest < 40.0 and farthest < 50.0           # measured 13.3 and 18.4 m
+    widest_uniform, farthest_uniform = _feature_spread(rec, feature_memory=False)
+    assert widest_uniform > 10 * widest and farthest_uniform > 10 * farthest   # 5893 and 5587 m
+
+
 def test_a_vehicle_that_joins_takes_its_neighbours_tracks() -> None:
     rec = preset_recording("brambilla-road", [6, 0], {"feature_spacing": 6.0})
     joiner = int(rec.frames[0].vehicles[1])

@@ -15,7 +15,8 @@ Algorithm per step:
    agent's copy of the track, or a new feature's first detection — widened by
    `proposal_inflation` and `proposal_floor`, drawn with generators every agent seeds
    alike (one per step and feature), so that all agents hold the same particles
-   (§IV-C, after eq. 27); the weights divide by the proposal density.
+   (§IV-C, after eq. 27); the weights divide by the proposal density and multiply by
+   the feature prior b_k^(0) (below).
 2. (18) per vehicle–feature pair, g(f, v) = P(α = 0) + Σ_ℓ P(α = ℓ) N(z_ℓ; s_f − s_v,
    R_ℓ + h² Σ) / η(α = ℓ): every term divided by the predicted likelihood (13) the
    marginals were computed with, so that the "not detected" term is on the same scale
@@ -24,8 +25,9 @@ Algorithm per step:
 3. BPA-L over particle weights: (25)–(26) m_{i→k}(s_f) ∝ Σ_v w_i^ext(v) g(f, v) from the
    extrinsic vehicle weights; (28)–(29) Σ_i log m_{i→k} by average consensus over the
    vehicles sensing k, then max consensus so that all agree; (27) m_{k→i}(s_v) ∝
-   Σ_f w_k^ext(f) g(f, v); b_i ∝ Π_k m_{k→i}. It stops when no vehicle estimate moved
-   more than the tolerances (agreed by max consensus), or after `max_iterations`.
+   Σ_f w_k^ext(f) g(f, v); b_i ∝ Π_k m_{k→i}, b_k ∝ b_k^(0) Π_i m_{i→k}. It stops when
+   no vehicle estimate moved more than the tolerances (agreed by max consensus), or
+   after `max_iterations`.
 4. The weighted moments of the particle beliefs are the Gaussian beliefs reported and
    shared as the agents' feature copies (no resampling: the next step samples afresh).
 
@@ -34,8 +36,19 @@ particles), the kernel widening h² Σ (h² Silverman's bandwidth times
 `kernel_bandwidth`, Silverman 1986 eq. 4.14; Σ the sample covariance of the vehicle
 particles plus the feature proposal's before inflation) — without it the V2F noise, far
 below the spread of the beliefs, leaves almost no particle pair inside the kernel — and
-J (default 500; paper 5000). The `feedback` and `feature_memory` switches of `icp` are
-not used: every step starts from the GNSS-only filter and a uniform feature prior.
+J (default 500; paper 5000). Every step starts from the GNSS-only filter of each
+vehicle (`feedback` is not used).
+
+The feature prior. By default (`feature_memory = False`, as in `icp` and `icp-da-lc`)
+b_k^(0) is uniform. With soft pairings that belief is improper: g(f, v) keeps the
+constant P(α = 0) wherever the rows are not, so the weights P(α = 0) / proposal grow
+in the proposal's tails, the reported moments sit there, and the next proposal
+(inflated from them) is wider still. `feature_memory = True` uses the paper's b_k^(0)
+(24), last step's belief propagated: the agent's predicted copy, its covariance
+widened by `proposal_floor`. It stops that runaway on the crossroad with missed
+detections but costs vehicle accuracy in traffic (the Gaussian `icp`'s double counting
+of carried beliefs), so it is not the default; the measurements are in docs/icp.md,
+"The feature prior of icp-da-pf".
 
 Cost per step: the pair kernel O(B J² d) for B soft pairings, then per BPA-L iteration
 O(J²) per vehicle–feature pair and O(N_cons F J) per agent for the consensus
@@ -76,8 +89,8 @@ __all__ = ["ICPDAPF", "ICPDAPFParams"]
 
 @dataclass(frozen=True)
 class ICPDAPFParams(ICPDALCParams):
-    """Parameters of `icp-da-pf` (those of `icp-da-lc`, whose `threshold`, `feedback` and
-    `feature_memory` it does not use).
+    """Parameters of `icp-da-pf` (those of `icp-da-lc`, whose `threshold` and `feedback` it
+    does not use).
 
     Attributes
     ----------
@@ -89,7 +102,13 @@ class ICPDAPFParams(ICPDALCParams):
     min_association : soft pairings (18) with a smaller probability are left out.
     kernel_bandwidth : multiplier of Silverman's bandwidth with which the pair kernel is
         widened (0: the bare V2F noise, as the paper).
-    proposal_floor : standard deviations (m, m/s) added to the feature proposal.
+    proposal_floor : standard deviations (m, m/s) added to the feature proposal (and to
+        the feature prior, see `feature_memory`).
+    feature_memory : False (default): a uniform feature prior b_k^(0), as `icp` and
+        `icp-da-lc` use by default — with soft pairings it is improper (module
+        docstring, "The feature prior"). True: the agent's predicted copy of the feature
+        (the paper propagates last step's particles, eq. 24), with `proposal_floor`
+        added to its covariance.
     registration : as for `icp-da-lc`, but off by default: the particle version's soft
         pairings (18) divide by η, and it has not been measured with the registered η.
     """
@@ -203,12 +222,15 @@ class ICPDAPF(ICPDALC):
         pair_key, blk_pair = np.unique(blk_i * F + blk_k, return_inverse=True)
         pair_i, pair_k = pair_key // F, pair_key % F
         # proposals: the agent's copy of the track, or the new feature's first detection
-        prop_mean, prop_cov = self._proposals(pair_i, pair_k, ids, births, birth_g, birth_P)
+        prop_mean, prop_cov, prior_cov = self._proposals(pair_i, pair_k, ids, births, birth_g, birth_P)
         return self._particle_bpa_l(frame, network, prior, v2f, da.row_of, pair_i, pair_k, blk_pair, blk_w,
-                                    blk_p, blk_log_eta, prop_mean, prop_cov, ids)
+                                    blk_p, blk_log_eta, prop_mean, prop_cov, prior_cov, ids)
 
     def _proposals(self, pair_i: IntArray, pair_k: IntArray, ids: IntArray, births: IntArray,
-                   birth_g: FloatArray, birth_P: FloatArray) -> tuple[FloatArray, FloatArray]:
+                   birth_g: FloatArray, birth_P: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Per pair (agent, feature): the proposal's mean and covariance, and the covariance
+        of the feature prior b_k^(0) about the same mean (`feature_memory`): the agent's
+        copy widened by the floor, not inflated; NaN for a new feature (uniform prior)."""
         d = self.d
         mean = np.zeros((pair_i.size, d))
         cov = np.repeat(np.eye(d)[None], pair_i.size, 0)
@@ -227,12 +249,14 @@ class ICPDAPF(ICPDALC):
         floor = np.zeros(d)
         floor[self._position] = self.params.proposal_floor[0] ** 2
         floor[self._velocity] = self.params.proposal_floor[1] ** 2
-        return mean, cov * self.params.proposal_inflation**2 + np.diag(floor)
+        prior_cov = cov + np.diag(floor)
+        prior_cov[~known] = np.nan
+        return mean, cov * self.params.proposal_inflation**2 + np.diag(floor), prior_cov
 
     def _particle_bpa_l(self, frame: Frame, network: Network, prior: Gaussians, v2f: Batch,
                         row_of: IntArray, pair_i: IntArray, pair_k: IntArray, blk_pair: IntArray,
                         blk_w: IntArray, blk_p: FloatArray, blk_log_eta: FloatArray, prop_mean: FloatArray,
-                        prop_cov: FloatArray, ids: IntArray) -> tuple[Gaussians, int]:
+                        prop_cov: FloatArray, prior_cov: FloatArray, ids: IntArray) -> tuple[Gaussians, int]:
         p = self.params
         J, d = p.n_particles, self.d
         n, F, Pn = network.n_agents, ids.size, pair_i.size
@@ -244,6 +268,12 @@ class ICPDAPF(ICPDALC):
             gen = np.random.default_rng([self._shared_seed, frame.k, int(ids[pair_k[q]]) & ((1 << 62) - 1)])
             S[q] = sample_gaussians(prop_mean[q:q + 1], prop_cov[q:q + 1], J, gen).samples[0]
         log_prop = _proposal_logpdf(S, prop_mean, prop_cov)                               # (P, J)
+        # the weights of b_k are b_k^(0) / proposal: b_k^(0) uniform, or with `feature_memory`
+        # the agent's predicted copy (`_proposals`) — uniform still for a new feature, whose
+        # first detection is certain (its pairing probability is 1)
+        copied = ~np.isnan(prior_cov[:, 0, 0])
+        if p.feature_memory and copied.any():
+            log_prop[copied] -= _proposal_logpdf(S[copied], prop_mean[copied], prior_cov[copied])
         # g_ik(f, v) = P(α = 0) + Σ_ℓ P(α = ℓ) N(z_ℓ; s_f − s_v, R_ℓ) / η(α = ℓ), eq. (18) per
         # pair; dividing by the predicted likelihood (13) the marginals were computed with
         # makes every term a likelihood ratio, so that the "not detected" term (eq. 10's 1)
@@ -274,7 +304,7 @@ class ICPDAPF(ICPDALC):
             # (28)–(29): Σ_i log m_{i→k} by average consensus, then max consensus (agreement);
             # the members' blocks are the pairs, in the same (agent, feature) order
             q_sum = groups.maximum_members(groups.sum_members(log_ik))
-            log_wf = q_sum - log_prop                                   # uniform prior, IS weights
+            log_wf = q_sum - log_prop                                   # IS weights of b_k (26)
             # (27): m_{k→i}(s_v) ∝ Σ_f w_k^ext(f) g(f, v)
             ext_f = _softmax(log_wf - log_ik)
             log_kv = np.log(np.maximum(G.sum_over_features(ext_f), 1e-300))
