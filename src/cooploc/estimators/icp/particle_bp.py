@@ -222,15 +222,18 @@ class ICPDAPF(ICPDALC):
         pair_key, blk_pair = np.unique(blk_i * F + blk_k, return_inverse=True)
         pair_i, pair_k = pair_key // F, pair_key % F
         # proposals: the agent's copy of the track, or the new feature's first detection
-        prop_mean, prop_cov, prior_cov = self._proposals(pair_i, pair_k, ids, births, birth_g, birth_P)
+        prop_mean, prop_cov, prior_cov, copied = self._proposals(pair_i, pair_k, ids, births, birth_g,
+                                                                 birth_P)
         return self._particle_bpa_l(frame, network, prior, v2f, da.row_of, pair_i, pair_k, blk_pair, blk_w,
-                                    blk_p, blk_log_eta, prop_mean, prop_cov, prior_cov, ids)
+                                    blk_p, blk_log_eta, prop_mean, prop_cov, prior_cov, copied, ids)
 
     def _proposals(self, pair_i: IntArray, pair_k: IntArray, ids: IntArray, births: IntArray,
-                   birth_g: FloatArray, birth_P: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Per pair (agent, feature): the proposal's mean and covariance, and the covariance
-        of the feature prior b_k^(0) about the same mean (`feature_memory`): the agent's
-        copy widened by the floor, not inflated; NaN for a new feature (uniform prior)."""
+                   birth_g: FloatArray, birth_P: FloatArray
+                   ) -> tuple[FloatArray, FloatArray, FloatArray, np.ndarray]:
+        """Per pair (agent, feature): the proposal's mean and covariance; the covariance of
+        the feature prior b_k^(0) about the same mean (`feature_memory`), the agent's copy
+        widened by the floor, not inflated; and whether the pair has a copy (else it is a
+        new feature: its proposal is the first detection, its prior uniform)."""
         d = self.d
         mean = np.zeros((pair_i.size, d))
         cov = np.repeat(np.eye(d)[None], pair_i.size, 0)
@@ -249,14 +252,14 @@ class ICPDAPF(ICPDALC):
         floor = np.zeros(d)
         floor[self._position] = self.params.proposal_floor[0] ** 2
         floor[self._velocity] = self.params.proposal_floor[1] ** 2
-        prior_cov = cov + np.diag(floor)
-        prior_cov[~known] = np.nan
-        return mean, cov * self.params.proposal_inflation**2 + np.diag(floor), prior_cov
+        floor = np.diag(floor)
+        return mean, cov * self.params.proposal_inflation**2 + floor, cov + floor, known
 
     def _particle_bpa_l(self, frame: Frame, network: Network, prior: Gaussians, v2f: Batch,
                         row_of: IntArray, pair_i: IntArray, pair_k: IntArray, blk_pair: IntArray,
                         blk_w: IntArray, blk_p: FloatArray, blk_log_eta: FloatArray, prop_mean: FloatArray,
-                        prop_cov: FloatArray, prior_cov: FloatArray, ids: IntArray) -> tuple[Gaussians, int]:
+                        prop_cov: FloatArray, prior_cov: FloatArray, copied: np.ndarray, ids: IntArray
+                        ) -> tuple[Gaussians, int]:
         p = self.params
         J, d = p.n_particles, self.d
         n, F, Pn = network.n_agents, ids.size, pair_i.size
@@ -271,7 +274,6 @@ class ICPDAPF(ICPDALC):
         # the weights of b_k are b_k^(0) / proposal: b_k^(0) uniform, or with `feature_memory`
         # the agent's predicted copy (`_proposals`) — uniform still for a new feature, whose
         # first detection is certain (its pairing probability is 1)
-        copied = ~np.isnan(prior_cov[:, 0, 0])
         if p.feature_memory and copied.any():
             log_prop[copied] -= _proposal_logpdf(S[copied], prop_mean[copied], prior_cov[copied])
         # g_ik(f, v) = P(α = 0) + Σ_ℓ P(α = ℓ) N(z_ℓ; s_f − s_v, R_ℓ) / η(α = ℓ), eq. (18) per
