@@ -19,8 +19,9 @@ import numpy as np
 
 from cooploc.estimators.rsu_bp import RsuBPParams
 from cooploc.estimators.rsu_bp.tracking import FeatureTracker, _Features
-from cooploc.estimators.rsu_bp.vehicles import VehicleMessages, moments, posterior_samples
+from cooploc.estimators.rsu_bp.vehicles import VehicleMessages, posterior_samples
 from cooploc.gaussian import Gaussians, kf_update
+from cooploc.particles import Particles, weighted_moments
 from cooploc.registry import get_preset
 from cooploc.types import Batch, StateSet
 
@@ -146,7 +147,7 @@ def test_posterior_samples_reach_the_exact_posterior() -> None:
     exact = Gaussians(prior_mean[None], prior_cov[None])
     for j in range(3):
         exact = kf_update(exact, implied[j][None], H, C[j][None])
-    mean, cov = moments(samples, log_w)
+    mean, cov = weighted_moments(Particles(samples, log_w))
     sd = np.sqrt(np.diag(exact.cov[0]))
     # 600 weighted particles: the mean within half a posterior standard deviation
     assert (np.abs(mean[0] - exact.mean[0]) < 0.5 * sd).all(), (mean, exact.mean, sd)

@@ -4,8 +4,8 @@ For every block b and particle pair (j, l) with whitened u = L⁻¹(z − a) and
 v = L⁻¹ c, the exponent of N(z_b; a_{b,j} − c_{b,l}, W_b) is −½‖u_bj + v_bl‖²:
 
 - `kernel_matrix` stores exp(−½ (q_bjl − min_l q_bjl)) in float32 with the row shift
-  (the exponentials by `cooploc._expf.exp_inplace`: vectorized, and bit for bit the
-  C library's `expf` that ``np.exp`` calls here one element at a time);
+  (the exponentials by `cooploc._expf.exp_inplace`: float32, vectorized, within 2 ulp;
+  ``np.exp`` would call the C library's scalar `expf` here one element at a time);
 - `kernel_sum` returns log Σ_l w_bl exp(log_norm_b − ½ q_bjl) in float64 without
   storing the pairs;
 - `row_sums` / `column_sums` are the weighted sums of the stored values over l and over

@@ -41,7 +41,7 @@ from cooploc.estimators.base import birth_beliefs, checked_states, predict_steps
 from cooploc.estimators.gnss_kf import GnssKF, GnssKFParams
 from cooploc.estimators.rsu_bp.kernel import SeparableKernel
 from cooploc.estimators.rsu_bp.tracking import FeatureTracker
-from cooploc.estimators.rsu_bp.vehicles import moments, posterior_samples
+from cooploc.estimators.rsu_bp.vehicles import posterior_samples
 from cooploc.gaussian import Gaussians, gaussian_logpdf, kf_update
 from cooploc.params import Params, param
 from cooploc.particles import (
@@ -281,7 +281,7 @@ class RsuBP:
             messages = messages.on(slot, active.size)
             samples, log_w = posterior_samples(
                 StateSet(own.ids[active], own.mean[active], own.cov[active]), messages, N, self.rng)
-            mean[active], cov[active] = moments(samples, log_w)
+            mean[active], cov[active] = weighted_moments(Particles(samples, log_w))
             ess[active] = effective_sample_size(log_w)
         info["v2f_association"] = track
         info["v2f_track"] = track

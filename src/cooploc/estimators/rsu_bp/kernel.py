@@ -19,7 +19,7 @@ as logs. Two ways to compute them, the same numbers up to rounding:
   where n_s is the Gaussian's normaliser. Only x depends on both particles, and not on
   the row: E = exp(x − max_l x) is computed once per (vehicle, feature) — N_p²
   exponentials instead of M N_p², with M the vehicle's rows (x − max_l x in float64,
-  rounded to float32, then `cooploc._expf.exp_inplace`: glibc's `expf`, vectorized) —
+  rounded to float32, then `cooploc._expf.exp_inplace`: float32, vectorized) —
   and the sums over either index are products of E with weights that carry α, γ and
   the message weights in the log domain, each scaled by its largest entry:
 

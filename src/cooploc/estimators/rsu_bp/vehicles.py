@@ -17,10 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from cooploc.gaussian import Gaussians, from_information, symmetrize
-from cooploc.particles import effective_sample_size, normalize_log_weights
+from cooploc.particles import Particles, effective_sample_size, normalize_log_weights, weighted_moments
 from cooploc.types import FloatArray, IntArray, StateSet
 
-__all__ = ["VehicleMessages", "draw", "group_log_sum", "log_normal_rows", "moments", "posterior_samples"]
+__all__ = ["VehicleMessages", "draw", "group_log_sum", "log_normal_rows", "posterior_samples"]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
@@ -197,18 +197,6 @@ def draw(mean: FloatArray, cov: FloatArray, n: int, rng: np.random.Generator) ->
     return mean[:, None] + z @ np.swapaxes(np.linalg.cholesky(cov), 1, 2)
 
 
-def moments(samples: FloatArray, log_w: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Weighted mean and covariance like `particles.weighted_moments`, by matrix products."""
-    w = np.exp(log_w)
-    mean = (w[:, None, :] @ samples)[:, 0]
-    centred = samples - mean[:, None]
-    cov = np.swapaxes(centred * w[:, :, None], 1, 2) @ centred
-    d = samples.shape[2]
-    floor = 1e-12 + 1e-9 * np.trace(cov, axis1=1, axis2=2) / d
-    return mean, symmetrize(cov) + floor[:, None, None] * np.eye(d)
-
-
-
 def posterior_samples(own: StateSet, messages: VehicleMessages, n_particles: int, rng: np.random.Generator
                       ) -> tuple[FloatArray, FloatArray]:
     """Particles of b_s = φ_s χ_s Π_k μ_{k,s} by defensive importance sampling.
@@ -232,7 +220,7 @@ def posterior_samples(own: StateSet, messages: VehicleMessages, n_particles: int
     samples, log_w = _defensive_draw(own, messages, n_particles, rng, None)
     again = effective_sample_size(log_w) < REFINE_SHARE * n_particles
     if again.any():
-        first = Gaussians(*moments(samples[again], log_w[again]))
+        first = Gaussians(*weighted_moments(Particles(samples[again], log_w[again])))
         part = StateSet(own.ids[again], own.mean[again], own.cov[again])
         samples[again], log_w[again] = _defensive_draw(part, messages.subset(again), n_particles, rng, first)
     return samples, log_w
