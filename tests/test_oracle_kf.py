@@ -541,7 +541,8 @@ def test_observed_block_update_equals_the_information_update(seed: int, observed
     H[np.arange(2 * r), pairs[:, 0]], H[np.arange(2 * r), pairs[:, 1]] = 1.0, -0.5
     H[np.arange(r), np.arange(r)] += 1.0   # and every coordinate observed
     J, a = H.T @ H, H.T @ rng.standard_normal(2 * r)
-    post, shift = components._observed_block_update(P, E, J, np.flatnonzero(J), a)
+    nonzero = np.flatnonzero(J)
+    post, shift = components._observed_block_update(P, E, nonzero, J.ravel()[nonzero], a)
     JE = np.zeros((D, D))
     JE[np.ix_(E, E)] = J
     aE = np.zeros(D)

@@ -221,7 +221,7 @@ def _full(lower: FloatArray) -> FloatArray:
     return lower.T
 
 
-def _observed_block_update(P: FloatArray, E: IntArray, J: FloatArray, nonzero: IntArray,
+def _observed_block_update(P: FloatArray, E: IntArray, nonzero: IntArray, values: FloatArray,
                            a: FloatArray) -> tuple[FloatArray, FloatArray] | None:
     """(posterior covariance, mean shift) by adding the information to the inverse of the
     observed block: y = Eᵀθ, the rest u of the state regressed on y.
@@ -233,8 +233,9 @@ def _observed_block_update(P: FloatArray, E: IntArray, J: FloatArray, nonzero: I
     by A G⁺ a. Two r × r inversions (`linalg.spd_inverse_lower`) and O((D − r) r²), instead
     of the two D × D inversions of P = (P⁻⁻¹ + E J Eᵀ)⁻¹ over the whole state.
 
-    Only J's nonzeros (flat indices `nonzero`; the rows couple few pairs) are added. None
-    if round-off leaves G or G⁻¹ + J not positive definite.
+    J (r × r) is given by its nonzeros, `values` at flat indices `nonzero` (the rows couple
+    few pairs), and only they are added. None if round-off leaves G or G⁻¹ + J not
+    positive definite.
     """
     from cooploc.estimators.oracle_kf.linalg import spd_inverse_lower
 
@@ -245,7 +246,6 @@ def _observed_block_update(P: FloatArray, E: IntArray, J: FloatArray, nonzero: I
     # the whole state (y = θ, J zero where no row observes) is cheaper
     whole = 2 * D**3 <= 2 * r**3 + 4 * u * r * r + 2 * u * u * r + GATHER_COST * D * D
     i, j = np.divmod(nonzero, r)
-    values = J.ravel()[nonzero]
     if whole:   # y = θ: J's nonzeros and a placed on every coordinate (zero where unobserved)
         i, j, a = E[i], E[j], np.bincount(E, a, minlength=D)
     G = P if whole else P[np.ix_(E, E)]
@@ -670,7 +670,8 @@ class ComponentFilter:
         coordinates y = Eᵀθ, is computed for the rows of all components at once: the
         components' entities are numbered in one sequence, their observed coordinates laid
         out one component after the other in one y, and each row's terms scattered into
-        its component's J (stored one r_c × r_c block after the other) and a.
+        its component's J (indexed as r_c × r_c blocks one after the other; only the entries
+        that rows reach are summed and kept) and a.
         """
         comps = self.components
         n = len(comps)
@@ -718,17 +719,19 @@ class ComponentFilter:
                 for idx_u, H_u in blocks:
                     J_idx.append((base + idx_u[:, :, None] * scale + idx_t[:, None, :]).ravel())
                     J_val.append(np.einsum("iu,nit->nut", H_u, R_H).ravel())     # H_uᵀ R⁻¹ H_t
-        J_all = np.bincount(np.concatenate(J_idx), np.concatenate(J_val), minlength=int((r * r).sum()))
+        # J's entries summed over the rows where they are (a few per coordinate): the same
+        # sums, in the same order, as a dense Σ r_c² array would hold, without its passes
+        nonzero, inverse = np.unique(np.concatenate(J_idx), return_inverse=True)
+        J_values = np.bincount(inverse, np.concatenate(J_val), minlength=nonzero.size)
         a_all = np.bincount(np.concatenate(a_idx), np.concatenate(a_val), minlength=E.size)
-        nonzero = np.flatnonzero(J_all)
-        nonzero_at = np.searchsorted(nonzero, np.append(J_at, J_all.size))
+        nonzero_at = np.searchsorted(nonzero, np.append(J_at, int((r * r).sum())))
 
         nis, total_dof = 0.0, 0
         for i in np.flatnonzero(r).tolist():
             y_part = slice(y_at[i], y_at[i] + r[i])
-            J = J_all[J_at[i]:J_at[i] + r[i] * r[i]].reshape(r[i], r[i])
-            J_nonzero = nonzero[nonzero_at[i]:nonzero_at[i + 1]] - J_at[i]
-            reduction = self._update_component(comps[i], J, J_nonzero, a_all[y_part], E[y_part] - state_at[i])
+            part = slice(nonzero_at[i], nonzero_at[i + 1])
+            reduction = self._update_component(comps[i], nonzero[part] - J_at[i], J_values[part],
+                                               a_all[y_part], E[y_part] - state_at[i])
             if reduction is not None:
                 nis += float(nu_R_nu[i]) - reduction                    # νᵀ S⁻¹ ν, Woodbury
             else:  # P⁻ ≫ R: round-off ate the posterior; the stacked rows of the dense form
@@ -737,20 +740,23 @@ class ComponentFilter:
             total_dof += int(dof[i])
         return nis, total_dof
 
-    def _update_component(self, c: Component, J: FloatArray, J_nonzero: IntArray, a: FloatArray,
+    def _update_component(self, c: Component, J_nonzero: IntArray, J_values: FloatArray, a: FloatArray,
                           E: IntArray) -> float | None:
         """The information-form update of one component (module docstring, step 5), J given
-        with the flat indices of its nonzeros; returns (G a)ᵀ b, what the NIS is below
-        Σ νᵀR⁻¹ν, or None (`c` untouched) where round-off ate the posterior."""
+        by its nonzeros (`J_values` at flat indices `J_nonzero`); returns (G a)ᵀ b, what the
+        NIS is below Σ νᵀR⁻¹ν, or None (`c` untouched) where round-off ate the posterior."""
         P = c.cov
         r = E.size
         if 2 * r > P.shape[0]:  # most coordinates observed: two r × r inversions are cheaper
-            update = _observed_block_update(P, E, J, J_nonzero, a)
+            update = _observed_block_update(P, E, J_nonzero, J_values, a)
             if update is None or not _blocks_positive_definite(update[0], c, self.dims):
                 return None
             c.cov, shift = update
             c.mean = c.mean + shift                                    # θ = θ⁻ + P⁻E b
             return float(a @ shift[E])                                 # aᵀ G⁺ a = (G a)ᵀ b
+        J = np.zeros(r * r)
+        J[J_nonzero] = J_values
+        J = J.reshape(r, r)
         PE = P[:, E]                                                   # P⁻ E   (D, r)
         G = PE[E]                                                      # Eᵀ P⁻ E
         X = np.linalg.solve(np.eye(r) + J @ G, np.column_stack([a, J]))
