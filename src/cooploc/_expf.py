@@ -25,6 +25,11 @@ within 1 ulp, ≈ 99.99 %). About 2× faster than a vectorized table-driven `exp
 reproduced glibc's bits, which it replaced (2026-12, `docs/rsu_bp.md`).
 Outside the main range: x < −104 gives 0, x > 88.72 (above log FLT_MAX) infinity, and
 NaN stays NaN.
+
+The callers (`_particle_kernels`, `estimators/rsu_bp/_pair_sums.py`) compile this loop
+into their own; numba keys each module's cache on that module's file, so after editing
+this one, change them too (or delete their ``__pycache__``): their cached builds would
+keep the old exponential.
 """
 
 from __future__ import annotations
