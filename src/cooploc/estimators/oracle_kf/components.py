@@ -233,9 +233,9 @@ def _observed_block_update(P: FloatArray, E: IntArray, nonzero: IntArray, values
     by A G⁺ a. Two r × r inversions (`linalg.spd_inverse_lower`) and O((D − r) r²), instead
     of the two D × D inversions of P = (P⁻⁻¹ + E J Eᵀ)⁻¹ over the whole state.
 
-    J (r × r) is given by its nonzeros, `values` at flat indices `nonzero` (the rows couple
-    few pairs), and only they are added. None if round-off leaves G or G⁻¹ + J not
-    positive definite.
+    J (r × r) is given by the entries the rows reach, `values` at flat indices `nonzero`
+    (the rows couple few pairs; every other entry is zero), and only they are added.
+    None if round-off leaves G or G⁻¹ + J not positive definite.
     """
     from cooploc.estimators.oracle_kf.linalg import spd_inverse_lower
 
@@ -743,8 +743,9 @@ class ComponentFilter:
     def _update_component(self, c: Component, J_nonzero: IntArray, J_values: FloatArray, a: FloatArray,
                           E: IntArray) -> float | None:
         """The information-form update of one component (module docstring, step 5), J given
-        by its nonzeros (`J_values` at flat indices `J_nonzero`); returns (G a)ᵀ b, what the
-        NIS is below Σ νᵀR⁻¹ν, or None (`c` untouched) where round-off ate the posterior."""
+        by the entries the rows reach (`J_values` at flat indices `J_nonzero`, the rest
+        zero); returns (G a)ᵀ b, what the NIS is below Σ νᵀR⁻¹ν, or None (`c` untouched)
+        where round-off ate the posterior."""
         P = c.cov
         r = E.size
         if 2 * r > P.shape[0]:  # most coordinates observed: two r × r inversions are cheaper
