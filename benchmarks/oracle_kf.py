@@ -30,10 +30,11 @@ Measured in one process, on the same recordings (time inside `step` only):
    first `--dense-steps` steps.
 
 4. Against a baseline (`--baseline REV`, per preset): the component form of git revision
-   REV (its `oracle_kf/components.py`, loaded from `git show` beside the current one)
-   and the current one, run alternately `--repeats` times on the same recording in one
-   process: steps per second of each (the fastest repeat, wall clock and CPU time),
-   their ratio, and the largest difference between the two (relative, as in 1.).
+   REV (its `oracle_kf/components.py`, loaded from `git show` beside the current one;
+   every other module is the current one) and the current one, stepped side by side
+   on the same recording in one process, frame by frame, `--repeats` times: steps per
+   second of each (the fastest repeat), their time ratio (the median over repeats, wall
+   clock and CPU time), and the largest difference between the two (relative, as in 1.).
 
 Every pass runs with `--threads` BLAS threads (default 1, `backends.limit_threads`), as
 the workers of `cooploc run` run an estimator: on a shared machine OpenBLAS threads that
@@ -177,7 +178,13 @@ def baseline_filter(rev: str):
 
 
 def time_baseline(name: str, seed: int, rev: str, repeats: int, overrides: dict | None = None) -> dict:
-    """Steps per second of the component form at `rev` and now, alternately on one recording."""
+    """Steps per second of the component form at `rev` and now, stepped side by side.
+
+    Each repeat runs both filters over the recording at once, frame by frame, which of
+    them steps first alternating: a change of the machine's speed (it moves ±20 % over
+    seconds on a shared machine) then meets both alike, where whole runs one after the
+    other can land in different phases and show a ratio of the phases, not of the code.
+    """
     import time
 
     rec = recording(name, seed, overrides)
@@ -192,25 +199,33 @@ def time_baseline(name: str, seed: int, rev: str, repeats: int, overrides: dict 
 
     for which in ("baseline", "current"):
         run_steps(make(which), rec.frames[:2])
-    wall: dict[str, list[float]] = {"baseline": [], "current": []}
-    cpu: dict[str, list[float]] = {"baseline": [], "current": []}
-    estimates = {}
-    for r in range(repeats):   # alternate, starting with each in turn, so that load hits both alike
-        for which in (("baseline", "current") if r % 2 == 0 else ("current", "baseline")):
-            start = time.process_time()
-            seconds, estimates[which] = run_steps(make(which), rec.frames)
-            cpu[which].append(time.process_time() - start)
-            wall[which].append(seconds)
     n = len(rec.frames)
-    out = {"steps": n, "baseline": rev, "repeats": repeats, "seconds": wall, "cpu_seconds": cpu,
-           "baseline_steps_per_second": n / min(wall["baseline"]),
-           "current_steps_per_second": n / min(wall["current"]),
-           "speedup": min(wall["baseline"]) / min(wall["current"]),
-           "cpu_speedup": min(cpu["baseline"]) / min(cpu["current"]),
+    wall = {"baseline": np.zeros((repeats, n)), "current": np.zeros((repeats, n))}
+    cpu = {"baseline": np.zeros((repeats, n)), "current": np.zeros((repeats, n))}
+    estimates: dict[str, list[Estimate]] = {}
+    for r in range(repeats):
+        ests = {which: make(which) for which in wall}
+        estimates = {which: [] for which in wall}
+        for k, frame in enumerate(rec.frames):
+            for which in (("baseline", "current") if (r + k) % 2 == 0 else ("current", "baseline")):
+                start, start_cpu = time.perf_counter(), time.process_time()
+                estimates[which].append(ests[which].step(frame))
+                wall[which][r, k] = time.perf_counter() - start
+                cpu[which][r, k] = time.process_time() - start_cpu
+    seconds = {which: wall[which].sum(axis=1) for which in wall}
+    cpu_seconds = {which: cpu[which].sum(axis=1) for which in cpu}
+    out = {"steps": n, "baseline": rev, "repeats": repeats, "interleaved": "step by step",
+           "seconds": {w: v.tolist() for w, v in seconds.items()},
+           "cpu_seconds": {w: v.tolist() for w, v in cpu_seconds.items()},
+           "baseline_steps_per_second": n / seconds["baseline"].min(),
+           "current_steps_per_second": n / seconds["current"].min(),
+           "speedup": float(np.median(seconds["baseline"] / seconds["current"])),
+           "cpu_speedup": float(np.median(cpu_seconds["baseline"] / cpu_seconds["current"])),
            **forms_difference(estimates["current"], estimates["baseline"])}
     print(f"{name} against {rev}: {out['current_steps_per_second']:.1f} steps/s, "
           f"{rev} {out['baseline_steps_per_second']:.1f} (×{out['speedup']:.2f} wall, "
-          f"×{out['cpu_speedup']:.2f} CPU); max rel difference {out['max_rel_difference']:.2g}")
+          f"×{out['cpu_speedup']:.2f} CPU, median of {repeats} side-by-side runs); "
+          f"max rel difference {out['max_rel_difference']:.2g}")
     return out
 
 

@@ -326,6 +326,25 @@ def test_components_equal_dense_through_empty_frames(seed: int) -> None:
     assert forms_difference(rec) < FORMS_RTOL
 
 
+@pytest.mark.parametrize("preset", ["froehle2018", "brambilla-crossroad"])
+def test_rows_information_summed_densely_or_by_sorting_is_the_same(seed: int, preset: str,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    # J's duplicate entries are summed through a dense array or by sorting (np.unique),
+    # whichever is cheaper; both add the same values in the same order
+    from cooploc.estimators.oracle_kf import components
+
+    rec = preset_recording(preset, [seed, 94], {"n_steps": 12})
+    runs = []
+    for ratio in (0, 10**9):   # always sort / always the dense array
+        monkeypatch.setattr(components, "DENSE_SUM_RATIO", ratio)
+        runs.append(run_estimator("oracle-kf", rec))
+    for a, b in zip(*runs, strict=True):
+        assert a.info["nis"] == b.info["nis"]
+        for part in ("vehicles", "features"):
+            np.testing.assert_array_equal(getattr(a, part).mean, getattr(b, part).mean)
+            np.testing.assert_array_equal(getattr(a, part).cov, getattr(b, part).cov)
+
+
 def test_components_merge_only_when_rows_couple_them(seed: int) -> None:
     # brambilla-road: two vehicles that see features only after a few steps. Before, each
     # is alone (no component); once a row links them through a feature, one component.

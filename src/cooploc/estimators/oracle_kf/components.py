@@ -57,9 +57,9 @@ One step
    half of the coordinates (GNSS of position and velocity), two inversions are cheaper:
    G⁺ = (G⁻¹ + J)⁻¹ is the posterior covariance of y, and the u = D − r coordinates no row
    observes (features out of every vehicle's range) follow by regression on y
-   (`_observed_block_update`): 2 r³ + O(u r²) operations instead of the 2 D³ of
-   P = (P⁻⁻¹ + E J Eᵀ)⁻¹; where u is small the whole state is inverted (the regression's
-   scattered copies cost more than they save). The inversions (`linalg`) are Cholesky,
+   (`_observed_block_update`): 2 r³ + O(u r² + u² r) operations instead of the 2 D³ of
+   P = (P⁻⁻¹ + E J Eᵀ)⁻¹; where u is small (≲ 4 % of D) the whole state is inverted (the
+   copies into and out of the blocks cost more than they save). The inversions (`linalg`) are Cholesky,
    a triangular inverse by recursive halving with matrix products in place, and L⁻ᵀL⁻¹:
    LAPACK's potri, whose triangular inverse is several times slower in the OpenBLAS that
    NumPy ships, was most of a step. Where P⁻ and R are so far apart that the
@@ -92,6 +92,7 @@ from cooploc.gaussian import (
     kf_predict,
     kf_update_nis,
     kf_update_relative,
+    spd_inverse_and_product,
     symmetrize,
 )
 from cooploc.types import AssociationTruth, Estimate, FloatArray, Frame, IntArray, Setup
@@ -101,7 +102,9 @@ if TYPE_CHECKING:
 
 __all__ = ["Component", "ComponentFilter"]
 
-GATHER_COST = 400   # operations an entry of D × D a fancy-indexed pass costs, measured against potrf
+GATHER_COST = 90    # operations an entry of D × D the observed block's copies cost (measured, see the update)
+
+DENSE_SUM_RATIO = 16  # entries of Σ r_c² per entry of J below which J is summed in a dense array
 
 VEHICLE, FEATURE, CLONE = 0, 1, 2   # CLONE: H x_{k−1} of a vehicle with an odometry row, for one step
 N_KINDS = 3
@@ -165,9 +168,13 @@ def _select(c: Component, keep: np.ndarray, dims: IntArray) -> Component:
     entities = np.flatnonzero(keep)
     lengths = dims[c.kind[entities]]
     offsets = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    idx = np.repeat(c.start[entities] - offsets, lengths) + np.arange(lengths.sum())
+    from cooploc._matrix_kernels import take_block  # numba: loaded when first needed
+
+    idx = np.repeat(c.start[entities] - offsets, lengths) + np.arange(lengths.sum())   # ascending
+    cov = np.empty((idx.size, idx.size))
+    take_block(c.cov, idx, idx, cov)
     kind = c.kind[entities]
-    return Component(kind, c.ids[entities], _starts(kind, dims), c.mean[idx], c.cov[np.ix_(idx, idx)])
+    return Component(kind, c.ids[entities], _starts(kind, dims), c.mean[idx], cov)
 
 
 def _merge(parts: Sequence[Component], dims: IntArray) -> Component:
@@ -198,18 +205,17 @@ def _with_clones(c: Component, vehicles: IntArray, H: FloatArray, dims: IntArray
 
 
 def _blocks_positive_definite(cov: FloatArray, c: Component, dims: IntArray) -> bool:
-    """Whether every entity's diagonal block of `cov` (a covariance of `c`) is positive definite."""
-    if dims[VEHICLE] == dims[FEATURE]:  # one batch of blocks
-        kinds = [c.of_kind(None, dims)]
-    else:
-        kinds = [c.of_kind(kind, dims) for kind in (VEHICLE, FEATURE)]
-    for entities, idx in kinds:
-        if entities.size:
-            try:
-                np.linalg.cholesky(cov[idx[:, :, None], idx[:, None, :]])
-            except np.linalg.LinAlgError:
-                return False
-    return bool(np.isfinite(cov).all())
+    """Whether `cov` (a covariance of `c`) is finite and every vehicle's and feature's
+    diagonal block of it positive definite."""
+    from cooploc._matrix_kernels import all_finite, blocks_positive_definite  # numba: loaded when needed
+
+    kinds = [None] if dims[VEHICLE] == dims[FEATURE] else [VEHICLE, FEATURE]   # one batch of blocks
+    for kind in kinds:
+        entities, idx = c.of_kind(kind, dims)
+        if entities.size and not blocks_positive_definite(cov, np.ascontiguousarray(idx[:, 0]),
+                                                          idx.shape[1]):
+            return False
+    return all_finite(cov)
 
 
 def _full(lower: FloatArray) -> FloatArray:
@@ -221,6 +227,16 @@ def _full(lower: FloatArray) -> FloatArray:
     return lower.T
 
 
+def _add_at(W: FloatArray, i: IntArray, j: IntArray, values: FloatArray) -> None:
+    """W[i, j] += values, (i, j) distinct, for a Fortran-ordered W: through its flat view,
+    a one-dimensional index (a two-dimensional one cost ≈ 4 % of a step of many small
+    components)."""
+    flat = W.T.reshape(-1)          # C-ordered Wᵀ: a view, entry (i, j) of W at j·n + i
+    if not np.may_share_memory(flat, W):     # a copy: W was not Fortran-ordered
+        raise AssertionError("W must be Fortran-ordered")
+    flat[j * W.shape[0] + i] += values
+
+
 def _observed_block_update(P: FloatArray, E: IntArray, nonzero: IntArray, values: FloatArray,
                            a: FloatArray) -> tuple[FloatArray, FloatArray] | None:
     """(posterior covariance, mean shift) by adding the information to the inverse of the
@@ -228,55 +244,71 @@ def _observed_block_update(P: FloatArray, E: IntArray, nonzero: IntArray, values
 
     With G = Eᵀ P⁻ E the prior covariance of y, the posterior of y is
     G⁺ = (G⁻¹ + J)⁻¹ and its mean y⁻ + G⁺ a; the unobserved u = A y + e with
-    A = P⁻_uy G⁻¹ and e independent of y and of the rows, so
-    P⁺_uy = A G⁺, P⁺_uu = P⁻_uu − A (G − G⁺) Aᵀ = P⁻_uu − A (P⁻_uy − P⁺_uy)ᵀ and u moves
-    by A G⁺ a. Two r × r inversions (`linalg.spd_inverse_lower`) and O((D − r) r²), instead
-    of the two D × D inversions of P = (P⁻⁻¹ + E J Eᵀ)⁻¹ over the whole state.
+    A = P⁻_uy G⁻¹ and e independent of y and of the rows, so P⁺_uy = A G⁺,
+    P⁺_uu = P⁻_uu − A (G − G⁺) Aᵀ and u moves by A G⁺ a. G⁻¹ itself is not needed:
+    (G⁻¹ + J) G⁺ = I gives G⁻¹ G⁺ = I − J G⁺, so with B = P⁻_uy J (J has few entries)
+
+        P⁺_uy = P⁻_uy − B G⁺,   P⁺_uu = P⁻_uu − B P⁺_yu   (A (G − G⁺) = B G⁺),
+        A G⁺ a = P⁻_uy (a − J G⁺ a).
+
+    Two r × r inversions (`linalg.spd_inverse_lower`) and 2 u r² + 2 u² r operations,
+    instead of the two D × D inversions of P = (P⁻⁻¹ + E J Eᵀ)⁻¹ over the whole state
+    (the form with A took one more u × r × r product, and a copy of G⁻¹).
+    The blocks are copied out of P⁻ and the posterior into place by compiled loops over
+    runs of consecutive indices (`_matrix_kernels`). P⁺_uy is a difference that cancels
+    where the rows know y far better than the prior did; against the dense filter the
+    posterior stays within 1e-10 relative (`benchmarks/oracle_kf.py`, docs/oracle_kf.md).
 
     J (r × r) is given by the entries the rows reach, `values` at flat indices `nonzero`
     (the rows couple few pairs; every other entry is zero), and only they are added.
     None if round-off leaves G or G⁻¹ + J not positive definite.
     """
+    from cooploc._matrix_kernels import place_partition, sparse_product, take_block, take_lower
     from cooploc.estimators.oracle_kf.linalg import spd_inverse_lower
 
     D, r = P.shape[0], E.size
     u = D - r
-    # the regression of u costs O(u r²) and a few scattered passes over the D × D matrix
-    # (fancy indexing, ≈ GATHER_COST operations an entry); where u is small, inverting
-    # the whole state (y = θ, J zero where no row observes) is cheaper
-    whole = 2 * D**3 <= 2 * r**3 + 4 * u * r * r + 2 * u * u * r + GATHER_COST * D * D
+    # the regression of u costs O(u r²) and copies of the D × D matrix into and out of
+    # the blocks (≈ GATHER_COST operations an entry); where u is small, inverting the
+    # whole state (y = θ, J zero where no row observes) is cheaper: at D = 612 the two
+    # took the same time at u ≈ 24
+    whole = 2 * D**3 <= 2 * r**3 + 2 * u * r * r + 2 * u * u * r + GATHER_COST * D * D
     i, j = np.divmod(nonzero, r)
     if whole:   # y = θ: J's nonzeros and a placed on every coordinate (zero where unobserved)
-        i, j, a = E[i], E[j], np.bincount(E, a, minlength=D)
-    G = P if whole else P[np.ix_(E, E)]
-    G_inv = spd_inverse_lower(G.T)                         # symmetric: Gᵀ is G, Fortran-ordered
-    if G_inv is None:
+        G_inv = spd_inverse_lower(P.T)                     # symmetric: Pᵀ is P, Fortran-ordered
+        if G_inv is None:
+            return None
+        _add_at(G_inv, E[i], E[j], values)                 # P⁻⁻¹ + J (its upper triangle unread)
+        post = spd_inverse_lower(G_inv, overwrite=True)
+        if post is None:
+            return None
+        post = _full(post)
+        return post, post @ np.bincount(E, a, minlength=D)
+    G = np.empty((r, r), order="F")
+    take_lower(P, E, G)                                    # G = Eᵀ P⁻ E, lower triangle
+    info = spd_inverse_lower(G, overwrite=True)
+    if info is None:
         return None
-    if whole:
-        info = G_inv                                       # lower triangle only
-    else:
-        G_inv = _full(G_inv)
-        info = np.asfortranarray(G_inv)                    # a copy: G⁻¹ is needed below
-    info[i, j] += values                                   # G⁻¹ + J (its upper triangle unread)
+    _add_at(info, i, j, values)                            # G⁻¹ + J (its upper triangle unread)
     post_y = spd_inverse_lower(info, overwrite=True)
     if post_y is None:
         return None
     post_y = _full(post_y)                                 # G⁺
     shift_y = post_y @ a                                   # G⁺ a
-    if whole:
-        return post_y, shift_y
-    u = np.setdiff1d(np.arange(D), E, assume_unique=True)
-    P_uy = P[np.ix_(u, E)]
-    A = P_uy @ G_inv                                       # u = A y + e
-    post_uy = A @ post_y                                   # P⁺_uy = A G⁺
-    post_uu = symmetrize(P[np.ix_(u, u)] - A @ (P_uy - post_uy).T)
+    unobserved = np.ones(D, dtype=bool)
+    unobserved[E] = False
+    u = np.flatnonzero(unobserved)
+    P_uy, P_uu = np.empty((u.size, r)), np.empty((u.size, u.size))
+    take_block(P, u, E, P_uy)
+    take_block(P, u, u, P_uu)
+    B = sparse_product(P_uy, i, j, values)                 # P⁻_uy J
+    post_uy = P_uy - B @ post_y                            # P⁺_uy = P⁻_uy − B G⁺
+    P_uu -= B @ post_uy.T                                  # P⁺_uu = P⁻_uu − B P⁺_yu
     post = np.empty((D, D))
-    post[np.ix_(E, E)] = post_y
-    post[np.ix_(u, E)] = post_uy
-    post[np.ix_(E, u)] = post_uy.T
-    post[np.ix_(u, u)] = post_uu
+    place_partition(post, E, u, post_y, post_uy, symmetrize(P_uu))
     shift = np.empty(D)
-    shift[E], shift[u] = shift_y, A @ shift_y
+    shift[E] = shift_y
+    shift[u] = P_uy @ (a - np.bincount(i, values * shift_y[j], minlength=r))   # A G⁺ a = P⁻_uy (a − J G⁺ a)
     return post, shift
 
 
@@ -673,6 +705,8 @@ class ComponentFilter:
         its component's J (indexed as r_c × r_c blocks one after the other; only the entries
         that rows reach are summed and kept) and a.
         """
+        from cooploc._matrix_kernels import sum_duplicates  # numba: loaded when first needed
+
         comps = self.components
         n = len(comps)
         n_entities = np.array([c.ids.size for c in comps])
@@ -706,23 +740,28 @@ class ComponentFilter:
             for e, H, k in t:
                 Hc = H[:, self.observed_cols[k]]                                 # H on y
                 blocks.append((slot[e, None] + np.arange(Hc.shape[1]), Hc))      # (rows, w) places in y
-            nu = rows.z - sum(np.einsum("ij,nj->ni", Hc, y[idx]) for idx, Hc in blocks)   # ν = z − H θ⁻
-            R_inv = np.linalg.solve(rows.R, np.eye(rows.z.shape[1]))              # R⁻¹ (information)
-            R_nu = np.einsum("nij,nj->ni", R_inv, nu)                            # R⁻¹ ν
+            nu = rows.z - sum(y[idx] @ Hc.T for idx, Hc in blocks)                # ν = z − H θ⁻
+            R_inv, R_nu = spd_inverse_and_product(rows.R, nu)                    # R⁻¹ (information), R⁻¹ ν
             nu_R_nu += np.bincount(comp, np.sum(nu * R_nu, axis=1), minlength=n)
             dof += np.bincount(comp, minlength=n) * rows.z.shape[1]
             base, scale = J_base[comp][:, None, None], r[comp][:, None, None]
             for idx_t, H_t in blocks:
                 a_idx.append(idx_t.ravel())
-                a_val.append(np.einsum("it,ni->nt", H_t, R_nu).ravel())          # Hᵀ R⁻¹ ν
+                a_val.append((R_nu @ H_t).ravel())                               # Hᵀ R⁻¹ ν
                 R_H = R_inv @ H_t                                                # R⁻¹ H_t
                 for idx_u, H_u in blocks:
                     J_idx.append((base + idx_u[:, :, None] * scale + idx_t[:, None, :]).ravel())
-                    J_val.append(np.einsum("iu,nit->nut", H_u, R_H).ravel())     # H_uᵀ R⁻¹ H_t
-        # J's entries summed over the rows where they are (a few per coordinate): the same
-        # sums, in the same order, as a dense Σ r_c² array would hold, without its passes
-        nonzero, inverse = np.unique(np.concatenate(J_idx), return_inverse=True)
-        J_values = np.bincount(inverse, np.concatenate(J_val), minlength=nonzero.size)
+                    J_val.append((H_u.T @ R_H).ravel())                          # H_uᵀ R⁻¹ H_t
+        # J's entries summed over the rows where they are (a few per coordinate), in the
+        # rows' order, as a dense Σ r_c² array would hold them: through such an array where
+        # it is not much larger than the entries (one large component), else by sorting
+        # (many small components: the array would be mostly zeros); the same sums either way
+        J_idx, J_val, size = np.concatenate(J_idx), np.concatenate(J_val), int((r * r).sum())
+        if size <= DENSE_SUM_RATIO * J_idx.size:
+            nonzero, J_values = sum_duplicates(J_idx, J_val, size)
+        else:
+            nonzero, inverse = np.unique(J_idx, return_inverse=True)
+            J_values = np.bincount(inverse, J_val, minlength=nonzero.size)
         a_all = np.bincount(np.concatenate(a_idx), np.concatenate(a_val), minlength=E.size)
         nonzero_at = np.searchsorted(nonzero, np.append(J_at, int((r * r).sum())))
 
