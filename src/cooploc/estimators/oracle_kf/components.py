@@ -58,9 +58,10 @@ One step
    G⁺ = (G⁻¹ + J)⁻¹ is the posterior covariance of y, and the u = D − r coordinates no row
    observes (features out of every vehicle's range) follow by regression on y
    (`_observed_block_update`): 2 r³ + O(u r² + u² r) operations instead of the 2 D³ of
-   P = (P⁻⁻¹ + E J Eᵀ)⁻¹; where u is small (≲ 4 % of D) the whole state is inverted (the
-   copies into and out of the blocks cost more than they save). The inversions (`linalg`) are Cholesky,
-   a triangular inverse by recursive halving with matrix products in place, and L⁻ᵀL⁻¹:
+   P = (P⁻⁻¹ + E J Eᵀ)⁻¹; where u is small (≲ 4 % of D) the whole state is inverted
+   (the copies into and out of the blocks cost more than they save). The inversions
+   (`linalg`) are Cholesky, a triangular inverse by recursive halving with matrix
+   products in place, and L⁻ᵀL⁻¹:
    LAPACK's potri, whose triangular inverse is several times slower in the OpenBLAS that
    NumPy ships, was most of a step. Where P⁻ and R are so far apart that the
    posterior of y comes out not positive definite (a small difference of huge numbers),
@@ -165,11 +166,11 @@ def _singletons(kind: int, ids: IntArray, beliefs: Gaussians, dims: IntArray) ->
 
 def _select(c: Component, keep: np.ndarray, dims: IntArray) -> Component:
     """`c` with only the entities `keep` (mask): the others marginalised out."""
+    from cooploc._matrix_kernels import take_block  # numba: loaded when first needed
+
     entities = np.flatnonzero(keep)
     lengths = dims[c.kind[entities]]
     offsets = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    from cooploc._matrix_kernels import take_block  # numba: loaded when first needed
-
     idx = np.repeat(c.start[entities] - offsets, lengths) + np.arange(lengths.sum())   # ascending
     cov = np.empty((idx.size, idx.size))
     take_block(c.cov, idx, idx, cov)
