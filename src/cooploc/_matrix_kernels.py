@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from cooploc._gaussian_kernels import cholesky_into
+
 TILE = 32   # rows and columns of a tile of `mirror_lower` (16–64 alike at 640 rows, 128 slower)
 
 
@@ -224,21 +226,17 @@ def all_finite(a: np.ndarray) -> bool:
 @njit(cache=True, nogil=True)
 def blocks_positive_definite(cov: np.ndarray, start: np.ndarray, dim: int) -> bool:
     """Whether each diagonal block cov[s:s + dim, s:s + dim], s in `start`, is positive
-    definite: its Cholesky factorisation (of the lower triangle, as LAPACK's) finds every
-    pivot > 0 (NaN is not). A dim × dim factorisation per block in place, where a batched
-    ``np.linalg.cholesky`` first gathers the blocks."""
+    definite: its Cholesky factorisation (`_gaussian_kernels.cholesky_into`, of the lower
+    triangle, as LAPACK's) finds every pivot > 0, NaN not, in place, where a batched
+    ``np.linalg.cholesky`` first gathers the blocks. `cholesky_into` lets a NaN through
+    (NaN factors); a NaN anywhere in the block's lower triangle reaches a diagonal entry
+    of L, so the diagonal is checked as well. (numba caches this function with this file:
+    a change of `cholesky_into` reaches a cached build only when this file changes too.)"""
     L = np.empty((dim, dim))
     for s in start:
+        if not cholesky_into(cov[s:s + dim, s:s + dim], L):
+            return False
         for j in range(dim):
-            pivot = cov[s + j, s + j]
-            for k in range(j):
-                pivot -= L[j, k] * L[j, k]
-            if not pivot > 0.0:
+            if not L[j, j] > 0.0:
                 return False
-            L[j, j] = np.sqrt(pivot)
-            for i in range(j + 1, dim):
-                acc = cov[s + i, s + j]
-                for k in range(j):
-                    acc -= L[i, k] * L[j, k]
-                L[i, j] = acc / L[j, j]
     return True
